@@ -1,0 +1,52 @@
+"""Entry point of ``hostctl``: discovers the verbs in ``hostd/cli/cmd_*.py`` and runs one.
+
+Each verb module defines ``register(subparsers) -> None``, adding its parser(s) with
+``set_defaults(func=...)``; the function takes the parsed arguments and returns an exit code.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from collections.abc import Sequence
+
+import hostd.cli
+from hostd import __version__
+from hostd.cli.errors import EXIT_USAGE, CliError
+
+DEFAULT_SOCKET = "/run/hostd/hostd.sock"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hostctl", description="Control hostd and run the five-axis slicer offline.")
+    parser.add_argument("--version", action="version", version=f"hostctl {__version__}")
+    parser.add_argument("--socket", default=None,
+                        help=f"control socket of hostd (default: $HOSTD_SOCKET or {DEFAULT_SOCKET})")
+    subparsers = parser.add_subparsers(dest="verb", metavar="VERB")
+    subparsers.required = True
+    for info in sorted(pkgutil.iter_modules(hostd.cli.__path__), key=lambda m: m.name):
+        if info.name.startswith("cmd_"):
+            importlib.import_module(f"hostd.cli.{info.name}").register(subparsers)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except CliError as exc:
+        print(f"hostctl: {exc}", file=sys.stderr)
+        return exc.code
+    except KeyboardInterrupt:
+        print("hostctl: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
+
+__all__ = ["EXIT_USAGE", "main"]

@@ -1,0 +1,173 @@
+"""The configuration schema: every key hostd accepts, its type, bounds, default and meaning.
+
+This table is the single source of truth: the loader validates against it, ``config/hostd.yaml``
+is checked against it in the tests, and the README's key reference is generated from it
+(``python -m hostd.config.docs``).
+"""
+
+from __future__ import annotations
+
+from hostd.config.fields import Field, Flag, Number, Records, Text, Vector
+
+DEFAULT_START_GCODE = """\
+G28
+M140 S{bed_temperature}
+M104 S{nozzle_temperature}
+M190 S{bed_temperature}
+M109 S{nozzle_temperature}
+G92 E0
+"""
+
+DEFAULT_END_GCODE = """\
+M104 S0
+M140 S0
+M107
+G0 Z{safe_z} F3000
+G0 A0 C0 F3000
+M84
+"""
+
+SCHEMA: dict[str, dict[str, Field]] = {
+    "machine": {
+        "name": Text("Printer name shown in status and metrics.", "five-axis"),
+        "x_range": Vector("Machine X travel [min, max], mm.", (0.0, 500.0), length=2,
+                          lo=-2000, hi=2000, ordered=True),
+        "y_range": Vector("Machine Y travel [min, max], mm.", (0.0, 500.0), length=2,
+                          lo=-2000, hi=2000, ordered=True),
+        "z_range": Vector("Machine Z travel [min, max], mm.", (0.0, 700.0), length=2,
+                          lo=-2000, hi=2000, ordered=True),
+        "a_limits": Vector("Tilt (A) range [min, max], degrees.", (-90.0, 90.0), length=2,
+                           lo=-90, hi=90, ordered=True),
+        "c_limits": Vector("Rotation (C) range [min, max], degrees; null = continuous.",
+                           None, nullable=True, length=2, lo=-3600, hi=3600, ordered=True),
+        "table_origin": Vector("Machine position of the platform origin at A = C = 0, mm.",
+                               (250.0, 250.0, 100.0), lo=-2000, hi=2000),
+        "a_pivot": Vector("A point on the A axis in machine coordinates, mm.",
+                          (250.0, 250.0, 80.0), lo=-2000, hi=2000),
+        "platform_radius": Number("Radius of the round build platform, mm.", 150.0, lo=10,
+                                  hi=1000),
+        "linearize_tolerance": Number(
+            "Largest tool-tip deviation allowed when A/C move with a straight line, mm.",
+            0.01, lo=0.0005, hi=1.0),
+        "nozzle_diameter": Number("Nozzle diameter, mm.", 0.4, lo=0.1, hi=2.0),
+        "filament_diameter": Number("Filament diameter, mm.", 1.75, lo=1.0, hi=3.5),
+        "max_velocity": Number("Linear axes top speed, mm/s.", 200.0, lo=1, hi=2000),
+        "max_accel": Number("Linear axes acceleration, mm/s².", 1000.0, lo=10, hi=50000),
+        "max_rotary_velocity": Number("A/C top speed, degrees/s.", 90.0, lo=1, hi=3600),
+        "max_rotary_accel": Number("A/C acceleration, degrees/s².", 360.0, lo=1, hi=100000),
+    },
+    "printhead": {
+        "segments": Records(
+            "Printhead as solids of revolution about the nozzle axis, from the tip up: "
+            "each segment has start/end height above the tip and radius at each end (mm).",
+            ({"start": 0.0, "end": 12.0, "r_start": 0.5, "r_end": 7.43},
+             {"start": 12.0, "end": 50.0, "r_start": 15.0, "r_end": 15.0}),
+            keys=("start", "end", "r_start", "r_end"), lo=0.0, hi=1000.0),
+    },
+    "process": {
+        "layer_height": Number("Nominal layer thickness t along the skeleton, mm.", 0.2,
+                               lo=0.04, hi=1.0),
+        "line_width": Number("Extrusion width, mm.", 0.45, lo=0.1, hi=2.0),
+        "perimeters": Number("Number of perimeter loops.", 2, lo=1, hi=20, integer=True),
+        "infill_density": Number("Sparse infill density, 0..1.", 0.2, lo=0.0, hi=1.0),
+        "infill_angle": Number("Infill direction of even layers, degrees.", 45.0, lo=-180,
+                               hi=180),
+        "solid_layers": Number("Solid layers at the bottom and top of every sub-part.", 3,
+                               lo=0, hi=50, integer=True),
+        "print_speed": Number("Infill speed, mm/s.", 40.0, lo=1, hi=500),
+        "perimeter_speed": Number("Perimeter speed, mm/s.", 30.0, lo=1, hi=500),
+        "first_layer_speed": Number("Speed of a sub-part's first layer, mm/s.", 15.0, lo=1,
+                                    hi=500),
+        "travel_speed": Number("Travel speed, mm/s.", 120.0, lo=1, hi=1000),
+        "retract_length": Number("Retraction length, mm of filament.", 1.0, lo=0, hi=20),
+        "retract_speed": Number("Retraction speed, mm/s.", 35.0, lo=1, hi=200),
+        "z_hop": Number("Lift along the nozzle axis on travel, mm.", 0.4, lo=0, hi=10),
+        "safe_height": Number("Clearance above the part for rotate/return moves, mm.", 60.0,
+                              lo=1, hi=700),
+        "min_layer_factor": Number("Smallest local layer thickness as a share of t.", 0.5,
+                                   lo=0.1, hi=1.0),
+        "max_layer_factor": Number("Largest local layer thickness as a share of t.", 1.5,
+                                   lo=1.0, hi=3.0),
+        "interface_layers": Number("Solid parent layers under a child's base.", 3, lo=0,
+                                   hi=50, integer=True),
+        "interface_speed_factor": Number("Speed factor of a child's first layer.", 0.5,
+                                         lo=0.05, hi=1.0),
+        "interface_flow": Number("Extrusion multiplier of a child's first layer.", 1.1,
+                                 lo=0.5, hi=2.0),
+        "nozzle_temperature": Number("Hotend temperature, °C.", 210.0, lo=0, hi=450),
+        "bed_temperature": Number("Platform temperature, °C.", 60.0, lo=0, hi=150),
+        "fan_speed": Number("Part fan PWM while printing (0..255).", 255, lo=0, hi=255,
+                            integer=True),
+        "start_gcode": Text("G-code before the print; {placeholders} from this section.",
+                            DEFAULT_START_GCODE, multiline=True),
+        "end_gcode": Text("G-code after the print; {safe_z} is the safe machine Z.",
+                          DEFAULT_END_GCODE, multiline=True),
+    },
+    "decompose": {
+        "parts": Number("Coarse partition K; 0 chooses it automatically.", 0, lo=0, hi=64,
+                        integer=True),
+        "seed": Number("Seed of k-means and the plane search.", 0, lo=0, hi=2**31 - 1,
+                       integer=True),
+        "plane_offset_max": Number("Largest random plane offset per perturbation, mm.", 2.0,
+                                   lo=0.0, hi=50.0),
+        "plane_angle_max": Number("Largest random normal tilt per perturbation, degrees.",
+                                  5.0, lo=0.0, hi=45.0),
+        "area_growth_max": Number("Largest growth of the excluded cross-section (share).",
+                                  0.15, lo=0.0, hi=10.0),
+        "max_iterations": Number("Plane search iterations per boundary.", 2000, lo=1,
+                                 hi=10**6, integer=True),
+    },
+    "serial": {
+        "port": Text("Serial device, or sim:// for the built-in firmware emulator.", "sim://"),
+        "baud": Number("Baud rate.", 115200, lo=1200, hi=4000000, integer=True),
+        "flow_control": Text("window (buffer credit) or pingpong (one line in flight).",
+                             "window", choices=("window", "pingpong")),
+        "rx_buffer_bytes": Number("Firmware receive buffer the window may fill, bytes.", 127,
+                                  lo=16, hi=65536, integer=True),
+        "ok_timeout": Number("Seconds without an ok before nudging with M105.", 10.0,
+                             lo=0.05, hi=3600),
+        "resend_limit": Number("Resends of one line before the job fails.", 10, lo=1,
+                               hi=1000, integer=True),
+        "history_size": Number("Sent lines kept for resends.", 1024, lo=16, hi=1_000_000,
+                               integer=True),
+        "reconnect_min": Number("First reconnect delay, s.", 0.5, lo=0.01, hi=600),
+        "reconnect_max": Number("Largest reconnect delay, s.", 30.0, lo=0.01, hi=3600),
+    },
+    "transition": {
+        "position_tolerance": Number("Largest X/Y/Z mismatch after a rotate move, mm.", 0.05,
+                                     lo=0.0, hi=10.0),
+        "angle_tolerance": Number("Largest A/C mismatch after a rotate move, degrees.", 0.05,
+                                  lo=0.0, hi=10.0),
+        "temperature_tolerance": Number("Largest hotend drift before a rotate move, °C.", 5.0,
+                                        lo=0.0, hi=100.0),
+    },
+    "daemon": {
+        "socket": Text("Path of the JSON-RPC control socket.", "/run/hostd/hostd.sock"),
+        "state_dir": Text("Directory of the job database and the upload spool.",
+                          "/var/lib/hostd"),
+        "max_upload_bytes": Number("Largest accepted upload, bytes.", 64 * 1024 * 1024,
+                                   lo=1024, hi=2**34, integer=True),
+        "log_level": Text("Logging level.", "info", choices=("debug", "info", "warning",
+                                                               "error")),
+    },
+    "metrics": {
+        "enabled": Flag("Serve Prometheus metrics.", True),
+        "host": Text("Metrics listen address (loopback by default).", "127.0.0.1"),
+        "port": Number("Metrics TCP port.", 9464, lo=1, hi=65535, integer=True),
+    },
+    "sim": {
+        "rx_buffer_bytes": Number("Emulated firmware receive buffer, bytes.", 127, lo=16,
+                                  hi=65536, integer=True),
+        "realtime": Flag("Run the emulated planner in real time (else as fast as possible).",
+                         False),
+        "time_scale": Number("Emulated seconds per real second when realtime.", 1.0,
+                             lo=0.001, hi=1e6),
+        "throttle": Flag("Limit the emulated wire to baud/10 bytes per second.", True),
+        "bit_flip_prob": Number("Probability of a corrupted received line.", 0.0, lo=0,
+                                hi=1),
+        "lost_ok_prob": Number("Probability that an ok is never sent.", 0.0, lo=0, hi=1),
+        "busy_prob": Number("Probability of a busy period after a command.", 0.0, lo=0,
+                            hi=1),
+        "seed": Number("Seed of the fault injection.", 0, lo=0, hi=2**31 - 1, integer=True),
+    },
+}
