@@ -24,7 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="hostctl", description="Control hostd and run the five-axis slicer offline.")
     parser.add_argument("--version", action="version", version=f"hostctl {__version__}")
     parser.add_argument("--socket", default=None,
-                        help=f"control socket of hostd (default: $HOSTD_SOCKET or {DEFAULT_SOCKET})")
+                        help=f"hostd control socket (default: $HOSTD_SOCKET or {DEFAULT_SOCKET})")
     subparsers = parser.add_subparsers(dest="verb", metavar="VERB")
     subparsers.required = True
     for info in sorted(pkgutil.iter_modules(hostd.cli.__path__), key=lambda m: m.name):

@@ -6,6 +6,7 @@ which the loader turns into ``file:line: key: reason``.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -141,7 +142,7 @@ class Vector(Field):
         xs = tuple(float(_number(_scalar(n), False)) for n in node.value)
         for x in xs:
             _bounded(x, self.lo, self.hi)
-        if self.ordered and any(b < a for a, b in zip(xs, xs[1:], strict=False)):
+        if self.ordered and any(b < a for a, b in itertools.pairwise(xs)):
             raise FieldError(f"{list(xs)} must be in ascending order")
         return xs
 
