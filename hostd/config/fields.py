@@ -16,7 +16,15 @@ import yaml
 
 
 class FieldError(ValueError):
-    """A value that does not fit its field; the message is the reason, without the key."""
+    """A value that does not fit its field; the message is the reason, without the key.
+
+    ``node`` is the YAML node at fault when it is more precise than the whole value (an item
+    of a list), so the loader can name its line.
+    """
+
+    def __init__(self, message: str, node: yaml.Node | None = None) -> None:
+        super().__init__(message)
+        self.node = node
 
 
 def _scalar(node: yaml.Node) -> Any:
@@ -172,20 +180,20 @@ class Records(Field):
 
     def _item(self, i: int, node: yaml.Node) -> dict[str, float]:
         if not isinstance(node, yaml.MappingNode):
-            raise FieldError(f"item {i}: expected a mapping with {', '.join(self.keys)}")
+            raise FieldError(f"item {i}: expected a mapping with {', '.join(self.keys)}", node)
         got = {_scalar(k): v for k, v in node.value}
         missing = [k for k in self.keys if k not in got]
         extra = [str(k) for k in got if k not in self.keys]
         if missing or extra:
             what = f"missing {', '.join(missing)}" if missing else f"unknown {', '.join(extra)}"
-            raise FieldError(f"item {i}: {what} (keys: {', '.join(self.keys)})")
+            raise FieldError(f"item {i}: {what} (keys: {', '.join(self.keys)})", node)
         out = {}
         for k in self.keys:
             try:
                 out[k] = float(_number(_scalar(got[k]), False))
                 _bounded(out[k], self.lo, self.hi)
             except FieldError as exc:
-                raise FieldError(f"item {i}: {k}: {exc}") from None
+                raise FieldError(f"item {i}: {k}: {exc}", got[k]) from None
         return out
 
     def describe(self) -> str:

@@ -141,7 +141,8 @@ def _section(name: str, section: str, node: yaml.Node) -> dict[str, Any]:
         try:
             out[dotted] = fields[key].parse(value)
         except FieldError as exc:
-            raise ConfigError(f"{name}:{_line(value)}: {dotted}: {exc}") from None
+            at = exc.node if exc.node is not None else value
+            raise ConfigError(f"{name}:{_line(at)}: {dotted}: {exc}") from None
     return out
 
 

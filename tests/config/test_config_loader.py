@@ -1,0 +1,114 @@
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hostd.config import ConfigError, defaults, load, loads
+from hostd.config.docs import render_markdown, render_yaml
+from hostd.config.paths import DEFAULT_CONFIG
+from hostd.config.schema import SCHEMA
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_shipped_default_is_the_rendered_schema() -> None:
+    assert (ROOT / "config" / "hostd.yaml").read_text() == render_yaml()
+
+
+def test_shipped_default_loads_to_the_schema_defaults() -> None:
+    cfg = load(ROOT / "config" / "hostd.yaml")
+    assert dict(cfg) == dict(defaults())
+    assert cfg["machine.a_limits"] == (-90.0, 90.0)
+    assert cfg["serial.port"] == "sim://"
+
+
+def test_packaged_default_points_at_the_shipped_file() -> None:
+    assert DEFAULT_CONFIG.read_text() == (ROOT / "config" / "hostd.yaml").read_text()
+
+
+def test_every_schema_key_is_documented_in_markdown() -> None:
+    table = render_markdown()
+    for section, fields in SCHEMA.items():
+        for key in fields:
+            assert f"`{section}.{key}`" in table
+
+
+def test_empty_file_gives_defaults() -> None:
+    assert dict(loads("", "x.yaml")) == dict(defaults())
+
+
+def test_partial_file_overrides_only_what_it_states() -> None:
+    cfg = loads("machine:\n  a_limits: [-45, 60]\nserial:\n  baud: 250000\n", "p.yaml")
+    assert cfg["machine.a_limits"] == (-45.0, 60.0)
+    assert cfg["serial.baud"] == 250000
+    assert cfg["machine.nozzle_diameter"] == defaults()["machine.nozzle_diameter"]
+
+
+def _error(text: str) -> str:
+    with pytest.raises(ConfigError) as info:
+        loads(text, "config/hostd.yaml")
+    return str(info.value)
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("machine:\n  a_limits: [-120, 90]\n",
+         "config/hostd.yaml:2: machine.a_limits: -120 is below -90"),
+        ("machine:\n  nozzle_diameter: 0.4\n  bogus: 1\n",
+         "config/hostd.yaml:3: machine.bogus: unknown key"),
+        ("serial:\n  baud: fast\n", "config/hostd.yaml:2: serial.baud: 'fast' is not an integer"),
+        ("metrics:\n  port: 70000\n", "config/hostd.yaml:2: metrics.port: 70000 is above 65535"),
+        ("serial:\n  flow_control: turbo\n",
+         "config/hostd.yaml:2: serial.flow_control: 'turbo' is not one of window, pingpong"),
+        ("machine:\n  table_origin: [1, 2]\n",
+         "config/hostd.yaml:2: machine.table_origin: expected 3 numbers, got 2"),
+        ("machine:\n  a_limits: [60, -60]\n",
+         "config/hostd.yaml:2: machine.a_limits: [60.0, -60.0] must be in ascending order"),
+        ("nonsense:\n  x: 1\n", "config/hostd.yaml:1: nonsense: unknown section"),
+        ("metrics:\n  enabled: 1\n",
+         "config/hostd.yaml:2: metrics.enabled: 1 is not true or false"),
+        ("process:\n  layer_height: .nan\n",
+         "config/hostd.yaml:2: process.layer_height: nan is not a finite number"),
+        ("serial:\n  baud: 9600\n  baud: 19200\n",
+         "config/hostd.yaml:3: serial.baud: duplicate key"),
+        ("machine: [1, 2]\n", "config/hostd.yaml:1: machine: expected a mapping of keys"),
+        ("- a\n- b\n", "config/hostd.yaml:1: the top level must be a mapping"),
+        ("machine:\n  a_limits: [1, 2\n", "config/hostd.yaml:3: invalid YAML"),
+        ("serial:\n  reconnect_min: 5\n  reconnect_max: 1\n",
+         "config/hostd.yaml:2: serial.reconnect_min: is above serial.reconnect_max"),
+        ("printhead:\n  segments:\n    - {start: 0, end: 5, r_start: 1}\n",
+         "config/hostd.yaml:3: printhead.segments: item 0: missing r_end"),
+        ("printhead:\n  segments:\n    - {start: 0, end: 5, r_start: 1, r_end: 2}\n"
+         "    - {start: 6, end: 9, r_start: 1, r_end: 2}\n",
+         "config/hostd.yaml:3: printhead.segments: item 1: start 6 leaves a gap"),
+    ],
+)
+def test_bad_values_are_fatal_with_file_line_and_key(text: str, expected: str) -> None:
+    message = _error(text)
+    assert message.startswith(expected), message
+    assert "\n" not in message
+
+
+def test_missing_file_is_named(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"nope\.yaml: no such file"):
+        load(tmp_path / "nope.yaml")
+
+
+def _check(path: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "hostd.main", "--check-config", str(path)],
+                          capture_output=True, text=True, timeout=60)
+
+
+def test_check_config_cli_ok_and_error(tmp_path: Path) -> None:
+    good = _check(ROOT / "config" / "hostd.yaml")
+    assert (good.returncode, good.stdout.strip()) == (0, "ok")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("# a comment\nmachine:\n  a_limits: [-120, 90]\n")
+    res = _check(bad)
+    assert res.returncode == 2
+    assert res.stdout.strip() == f"{bad}:3: machine.a_limits: -120 is below -90"
+    assert "Traceback" not in res.stderr
