@@ -1,0 +1,206 @@
+"""Loading, repair, validation and placement of STL parts.
+
+:func:`load_mesh` reads ASCII or binary STL with trimesh, repairs what can be repaired (merged
+duplicate vertices, consistent outward winding, degenerate and duplicate faces dropped) and
+refuses what cannot be printed with a :class:`MeshError` whose ``str`` is one line naming the
+file. :func:`place_on_platform` finds the flat base and returns the part in the platform frame
+(z up, base on z = 0, base centroid on the C axis) together with the 4×4 placement matrix that
+every later output carries.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+#: Tolerances of this module (mm, or cosines of angles).
+PLANE_TOL = 1e-3  # distance of a face from its base plane, mm
+NORMAL_COS = np.cos(np.radians(1.0))  # a face "faces down" within 1°
+MIN_BASE_AREA = 1.0  # a flat base smaller than this (mm²) is no base
+
+_PARSE_ERRORS = (ValueError, TypeError, IndexError, KeyError, ImportError, UnicodeDecodeError,
+                 struct.error)
+
+
+class MeshError(ValueError):
+    """A part that cannot be printed; ``str()`` is a one-line reason naming the file."""
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where the flat base was found and how the part was moved onto the platform.
+
+    Attributes
+    ----------
+    matrix : (4, 4) float
+        Input frame → platform frame.
+    base_area : float
+        Area of the flat base, mm².
+    base_normal : (3,) float
+        Outward normal of the base in the input frame.
+    """
+
+    matrix: np.ndarray
+    base_area: float
+    base_normal: np.ndarray
+
+
+def load_mesh(path: str | Path, build_volume: np.ndarray | None = None,
+              min_size: float = 0.4) -> tuple[trimesh.Trimesh, Placement]:
+    """Read, repair, validate and place an STL file.
+
+    Parameters
+    ----------
+    path : str or Path
+        ASCII or binary STL.
+    build_volume : (3,) float, optional
+        Largest extents (x, y, z) the machine can hold, mm.
+    min_size : float
+        Smallest acceptable largest extent (the nozzle diameter), mm.
+
+    Returns
+    -------
+    mesh : trimesh.Trimesh
+        Watertight, in the platform frame.
+    placement : Placement
+
+    Raises
+    ------
+    MeshError
+        One line: ``"<file>: <reason>"``.
+    """
+    name = str(path)
+    mesh = repair(read_stl(path), name)
+    check_size(mesh, name, None, min_size)
+    placed, placement = place_on_platform(mesh, name)
+    check_size(placed, name, build_volume, min_size)
+    return placed, placement
+
+
+def read_stl(path: str | Path) -> trimesh.Trimesh:
+    """Parse an STL file with trimesh, refusing empty, truncated or non-finite files."""
+    name = str(path)
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise MeshError(f"{name}: cannot read: {exc.strerror or exc}") from None
+    if not data.strip():
+        raise MeshError(f"{name}: empty file")
+    _check_binary_length(data, name)
+    try:
+        mesh = trimesh.load_mesh(trimesh.util.wrap_as_stream(data), file_type="stl",
+                                 process=False)
+    except _PARSE_ERRORS as exc:
+        raise MeshError(f"{name}: not a readable STL file ({type(exc).__name__})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise MeshError(f"{name}: no triangles (empty or truncated STL)")
+    if not np.isfinite(mesh.vertices).all():
+        bad = int((~np.isfinite(mesh.vertices).all(axis=1)).sum())
+        raise MeshError(f"{name}: {bad} vertices have NaN or infinite coordinates")
+    return mesh
+
+
+def _check_binary_length(data: bytes, name: str) -> None:
+    """Refuse a binary STL whose length disagrees with its triangle count."""
+    if data[:5].lower() == b"solid" and b"facet" in data[:2048]:
+        return  # ASCII
+    if len(data) < 84:
+        raise MeshError(f"{name}: truncated STL ({len(data)} bytes, no binary header)")
+    count = struct.unpack("<I", data[80:84])[0]
+    expected = 84 + 50 * count
+    if len(data) < expected:
+        raise MeshError(f"{name}: truncated binary STL: header declares {count} triangles "
+                        f"({expected} bytes) but the file has {len(data)} bytes")
+
+
+def repair(mesh: trimesh.Trimesh, name: str = "<mesh>") -> trimesh.Trimesh:
+    """Merge vertices, drop degenerate/duplicate faces, fix winding; refuse open meshes."""
+    mesh = trimesh.Trimesh(mesh.vertices, mesh.faces, process=True, validate=True)
+    mesh.update_faces(mesh.nondegenerate_faces())
+    mesh.update_faces(mesh.unique_faces())
+    mesh.remove_unreferenced_vertices()
+    if len(mesh.faces) == 0:
+        raise MeshError(f"{name}: all triangles are degenerate")
+    trimesh.repair.fix_normals(mesh)
+    if not mesh.is_watertight:
+        open_edges = len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1))
+        raise MeshError(f"{name}: not watertight after repair ({open_edges} open edges)")
+    if not mesh.is_winding_consistent or mesh.volume <= 0:
+        raise MeshError(f"{name}: not a closed solid (inconsistent winding or no volume)")
+    return mesh
+
+
+def find_base(mesh: trimesh.Trimesh) -> tuple[np.ndarray, float, np.ndarray]:
+    """The flat base: the largest downward planar region at the lowest height.
+
+    The part's own orientation is tried first (faces facing -Z at the lowest z); when it has
+    no flat bottom, the planes of the convex hull are tried and the one holding the most
+    coplanar face area wins.
+
+    Returns
+    -------
+    normal : (3,) float
+        Outward unit normal of the base.
+    area : float
+        Base area, mm² (0 when there is no base).
+    faces : (m,) int
+        Faces on the base.
+    """
+    down = np.array([0.0, 0.0, -1.0])
+    faces, area = _faces_on_plane(mesh, down)
+    if area >= MIN_BASE_AREA:
+        return down, area, faces
+    best = (down, 0.0, faces)
+    hull = mesh.convex_hull
+    for normal in hull.facets_normal if len(hull.facets) else hull.face_normals:
+        f, a = _faces_on_plane(mesh, normal)
+        if a > best[1]:
+            best = (np.asarray(normal, dtype=float), a, f)
+    return best
+
+
+def _faces_on_plane(mesh: trimesh.Trimesh, normal: np.ndarray) -> tuple[np.ndarray, float]:
+    """Faces facing ``normal`` on the extreme supporting plane in that direction."""
+    height = float((mesh.vertices @ normal).max())
+    facing = mesh.face_normals @ normal >= NORMAL_COS
+    on = np.abs(mesh.triangles_center @ normal - height) <= PLANE_TOL
+    idx = np.flatnonzero(facing & on)
+    return idx, float(mesh.area_faces[idx].sum())
+
+
+def place_on_platform(mesh: trimesh.Trimesh, name: str = "<mesh>"
+                      ) -> tuple[trimesh.Trimesh, Placement]:
+    """Turn the base down onto z = 0 with its area centroid on the platform centre."""
+    normal, area, faces = find_base(mesh)
+    if area < MIN_BASE_AREA:
+        raise MeshError(f"{name}: no flat base (largest planar face region {area:.3g} mm²)")
+    matrix = trimesh.geometry.align_vectors(normal, [0.0, 0.0, -1.0])
+    verts = trimesh.transform_points(mesh.vertices, matrix)
+    tri = verts[mesh.faces[faces]]
+    w = mesh.area_faces[faces]
+    centre = (tri.mean(axis=1) * w[:, None]).sum(axis=0) / w.sum()
+    shift = np.eye(4)
+    shift[:3, 3] = (-centre[0], -centre[1], -verts[:, 2].min())
+    matrix = shift @ matrix
+    placed = mesh.copy()
+    placed.apply_transform(matrix)
+    return placed, Placement(matrix, area, np.asarray(normal, dtype=float))
+
+
+def check_size(mesh: trimesh.Trimesh, name: str, build_volume: np.ndarray | None,
+               min_size: float) -> None:
+    """Refuse a part larger than the build volume or smaller than the nozzle."""
+    ext = mesh.extents
+    if ext.max() < min_size:
+        raise MeshError(f"{name}: too small: largest extent {ext.max():.3g} mm is below the "
+                        f"nozzle diameter {min_size:g} mm")
+    if build_volume is not None:
+        limit = np.asarray(build_volume, dtype=float)
+        if (ext > limit).any():
+            dims = " × ".join(f"{x:.1f}" for x in ext)
+            room = " × ".join(f"{x:.1f}" for x in limit)
+            raise MeshError(f"{name}: too big: {dims} mm exceeds the build volume {room} mm")
