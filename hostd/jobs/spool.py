@@ -1,0 +1,75 @@
+"""Content-addressed upload storage: every upload is kept once, named by its sha256.
+
+The daemon only ever reads files it stored here itself; a client never names a path.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+from pathlib import Path
+
+_SHA = re.compile(r"^[0-9a-f]{64}$")
+
+
+class SpoolError(Exception):
+    """An upload that cannot be stored (too large, empty) or a digest that is not stored."""
+
+
+class Spool:
+    """A directory of files named ``<sha256>`` plus an extension.
+
+    Parameters
+    ----------
+    root
+        The spool directory (created if missing).
+    max_bytes
+        The largest accepted upload.
+    """
+
+    def __init__(self, root: str | Path, max_bytes: int) -> None:
+        self.root = Path(root)
+        self.max_bytes = int(max_bytes)
+        self.root.mkdir(parents=True, exist_ok=True)
+
+    def check_size(self, size: int) -> None:
+        """Raise :class:`SpoolError` for an empty or oversized upload."""
+        if size <= 0:
+            raise SpoolError("empty upload")
+        if size > self.max_bytes:
+            raise SpoolError(f"upload of {size} bytes exceeds the limit of {self.max_bytes} bytes")
+
+    def put(self, data: bytes, suffix: str) -> str:
+        """Store ``data`` (atomically, once) and return its sha256 hex digest."""
+        self.check_size(len(data))
+        digest = hashlib.sha256(data).hexdigest()
+        path = self.path(digest, suffix, must_exist=False)
+        if not path.exists():
+            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+            with open(tmp, "wb") as fh:
+                fh.write(data)
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        return digest
+
+    def path(self, digest: str, suffix: str, must_exist: bool = True) -> Path:
+        """The file of ``digest``; only well-formed digests map to a path."""
+        if not _SHA.match(digest) or not re.match(r"^\.[a-z0-9]{1,8}$", suffix):
+            raise SpoolError(f"bad spool name {digest!r}{suffix!r}")
+        path = self.root / f"{digest}{suffix}"
+        if must_exist and not path.exists():
+            raise SpoolError(f"spool file {digest[:12]}{suffix} is missing")
+        return path
+
+    def read(self, digest: str, suffix: str) -> bytes:
+        return self.path(digest, suffix).read_bytes()
+
+    def remove(self, digest: str, suffix: str) -> None:
+        """Delete a stored file (no error if it is already gone)."""
+        self.path(digest, suffix, must_exist=False).unlink(missing_ok=True)
+
+    def usage(self) -> dict[str, int]:
+        files = [p for p in self.root.iterdir() if p.is_file() and not p.name.startswith(".")]
+        return {"files": len(files), "bytes": sum(p.stat().st_size for p in files)}

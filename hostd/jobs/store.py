@@ -1,0 +1,326 @@
+"""The job database: SQLite in WAL mode in the state directory.
+
+The schema is versioned with ``PRAGMA user_version`` (no migrations: a database of another
+version is refused with a clear error). Writes are single small statements, each its own
+transaction, so a SIGKILL leaves the last committed progress and state on disk.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hostd.jobs.states import ACTIVE, TERMINAL, WAITING, JobState, check_transition
+
+SCHEMA_VERSION = 1
+
+_DDL = """
+CREATE TABLE IF NOT EXISTS jobs (
+    id INTEGER PRIMARY KEY AUTOINCREMENT,
+    name TEXT NOT NULL,
+    kind TEXT NOT NULL CHECK (kind IN ('stl', 'gcode')),
+    upload_sha TEXT NOT NULL,
+    gcode_sha TEXT,
+    state TEXT NOT NULL,
+    reason TEXT NOT NULL DEFAULT '',
+    created_at REAL NOT NULL,
+    updated_at REAL NOT NULL,
+    started_at REAL,
+    finished_at REAL,
+    total_lines INTEGER NOT NULL DEFAULT 0,
+    acked_lines INTEGER NOT NULL DEFAULT 0,
+    subpart INTEGER,
+    layer INTEGER,
+    filament_mm REAL NOT NULL DEFAULT 0,
+    print_seconds REAL NOT NULL DEFAULT 0,
+    modal TEXT NOT NULL DEFAULT '{}',
+    estimate TEXT NOT NULL DEFAULT '{}',
+    info TEXT NOT NULL DEFAULT '{}',
+    resume TEXT NOT NULL DEFAULT '{}'
+);
+CREATE TABLE IF NOT EXISTS history (
+    job_id INTEGER NOT NULL REFERENCES jobs(id) ON DELETE CASCADE,
+    at REAL NOT NULL,
+    old TEXT,
+    new TEXT NOT NULL,
+    reason TEXT NOT NULL DEFAULT ''
+);
+CREATE INDEX IF NOT EXISTS history_job ON history(job_id);
+CREATE TABLE IF NOT EXISTS checkpoints (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    job_id INTEGER NOT NULL REFERENCES jobs(id) ON DELETE CASCADE,
+    at REAL NOT NULL,
+    subpart INTEGER NOT NULL,
+    parent INTEGER,
+    a REAL NOT NULL,
+    c REAL NOT NULL,
+    line INTEGER NOT NULL,
+    pose TEXT NOT NULL DEFAULT '{}'
+);
+CREATE INDEX IF NOT EXISTS checkpoints_job ON checkpoints(job_id);
+"""
+
+_JSON_COLUMNS = ("modal", "estimate", "info", "resume")
+_WRITABLE = frozenset({"gcode_sha", "total_lines", "acked_lines", "subpart", "layer",
+                       "filament_mm", "print_seconds", "modal", "estimate", "info", "resume",
+                       "started_at", "reason"})
+
+
+class StoreError(Exception):
+    """The job database cannot be opened or a request names no job."""
+
+
+class JobNotFound(StoreError):
+    """No job has the requested id."""
+
+
+@dataclass
+class Job:
+    """One row of ``jobs``, JSON columns decoded."""
+
+    id: int
+    name: str
+    kind: str
+    upload_sha: str
+    gcode_sha: str | None
+    state: JobState
+    reason: str
+    created_at: float
+    updated_at: float
+    started_at: float | None
+    finished_at: float | None
+    total_lines: int
+    acked_lines: int
+    subpart: int | None
+    layer: int | None
+    filament_mm: float
+    print_seconds: float
+    modal: dict[str, Any] = field(default_factory=dict)
+    estimate: dict[str, Any] = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
+    resume: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["state"] = self.state.value
+        d["progress"] = self.acked_lines / self.total_lines if self.total_lines else 0.0
+        return d
+
+
+@dataclass(frozen=True)
+class Checkpoint:
+    """A completed transition: sub-part ``subpart`` starts at A/C from file line ``line``."""
+
+    seq: int
+    job_id: int
+    at: float
+    subpart: int
+    parent: int | None
+    a: float
+    c: float
+    line: int
+    pose: dict[str, float]
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+class JobStore:
+    """The jobs table and its history and checkpoints.
+
+    Parameters
+    ----------
+    path
+        The database file; ``":memory:"`` for tests.
+    clock
+        Seconds since the epoch (injectable for tests).
+    """
+
+    def __init__(self, path: str | Path, clock: Any = time.time) -> None:
+        self.path = str(path)
+        self._clock = clock
+        try:
+            self._db = sqlite3.connect(self.path, isolation_level=None,
+                                       check_same_thread=False)
+            self._db.row_factory = sqlite3.Row
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.execute("PRAGMA foreign_keys=ON")
+            self._init_schema()
+        except sqlite3.Error as exc:
+            raise StoreError(f"{self.path}: cannot open the job database: {exc}") from None
+
+    def _init_schema(self) -> None:
+        version = self._db.execute("PRAGMA user_version").fetchone()[0]
+        if version not in (0, SCHEMA_VERSION):
+            raise StoreError(f"{self.path}: job database schema {version} is not "
+                             f"{SCHEMA_VERSION}; move it away to start afresh")
+        self._db.executescript(_DDL)
+        self._db.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+
+    def close(self) -> None:
+        self._db.close()
+
+    # -- jobs ------------------------------------------------------------------------------
+
+    def add(self, name: str, kind: str, upload_sha: str, gcode_sha: str | None = None,
+            estimate: dict[str, Any] | None = None) -> Job:
+        """Insert a new ``queued`` job and return it."""
+        now = self._clock()
+        with self._db:
+            cur = self._db.execute(
+                "INSERT INTO jobs (name, kind, upload_sha, gcode_sha, state, created_at,"
+                " updated_at, estimate) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (name, kind, upload_sha, gcode_sha, JobState.QUEUED.value, now, now,
+                 json.dumps(estimate or {})))
+            job_id = int(cur.lastrowid or 0)
+            self._db.execute("INSERT INTO history (job_id, at, old, new, reason)"
+                             " VALUES (?, ?, NULL, ?, 'submitted')",
+                             (job_id, now, JobState.QUEUED.value))
+        return self.get(job_id)
+
+    def get(self, job_id: int) -> Job:
+        row = self._db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()
+        if row is None:
+            raise JobNotFound(f"no job {job_id}")
+        return _job(row)
+
+    def list(self, states: Iterable[JobState] | None = None, limit: int = 1000) -> list[Job]:
+        """Jobs oldest first, optionally only those in ``states``."""
+        if states is None:
+            rows = self._db.execute("SELECT * FROM jobs ORDER BY id LIMIT ?", (limit,))
+        else:
+            names = [s.value for s in states]
+            marks = ",".join("?" * len(names))
+            rows = self._db.execute(f"SELECT * FROM jobs WHERE state IN ({marks})"
+                                    " ORDER BY id LIMIT ?", (*names, limit))
+        return [_job(r) for r in rows.fetchall()]
+
+    def first(self, state: JobState) -> Job | None:
+        """The oldest job in ``state`` (the head of that queue)."""
+        row = self._db.execute("SELECT * FROM jobs WHERE state = ? ORDER BY id LIMIT 1",
+                               (state.value,)).fetchone()
+        return None if row is None else _job(row)
+
+    def transition(self, job_id: int, new: JobState, reason: str = "") -> Job:
+        """Move a job to ``new`` (checked against the state machine) and log it."""
+        job = self.get(job_id)
+        check_transition(job.state, new)
+        now = self._clock()
+        sets = ["state = ?", "reason = ?", "updated_at = ?"]
+        args: list[Any] = [new.value, reason, now]
+        if new is JobState.PRINTING and job.started_at is None:
+            sets.append("started_at = ?")
+            args.append(now)
+        if new in TERMINAL:
+            sets.append("finished_at = ?")
+            args.append(now)
+        with self._db:
+            self._db.execute(f"UPDATE jobs SET {', '.join(sets)} WHERE id = ?",
+                             (*args, job_id))
+            self._db.execute("INSERT INTO history (job_id, at, old, new, reason)"
+                             " VALUES (?, ?, ?, ?, ?)",
+                             (job_id, now, job.state.value, new.value, reason))
+        return self.get(job_id)
+
+    def update(self, job_id: int, **fields: Any) -> None:
+        """Set some writable columns (one small transaction; JSON columns take dicts)."""
+        bad = set(fields) - _WRITABLE
+        if bad:
+            raise StoreError(f"not writable: {', '.join(sorted(bad))}")
+        cols = list(fields)
+        vals = [json.dumps(fields[c]) if c in _JSON_COLUMNS else fields[c] for c in cols]
+        sets = ", ".join(f"{c} = ?" for c in cols)
+        self._db.execute(f"UPDATE jobs SET {sets}, updated_at = ? WHERE id = ?",
+                         (*vals, self._clock(), job_id))
+
+    def delete(self, job_id: int) -> Job:
+        """Remove a job that does not own the printer; returns the removed row."""
+        job = self.get(job_id)
+        if job.state in ACTIVE:
+            raise StoreError(f"job {job_id} is {job.state}; cancel it first")
+        with self._db:
+            self._db.execute("DELETE FROM jobs WHERE id = ?", (job_id,))
+        return job
+
+    def references(self, sha: str) -> int:
+        """How many jobs use ``sha`` as upload or G-code."""
+        row = self._db.execute("SELECT COUNT(*) FROM jobs WHERE upload_sha = ? OR gcode_sha = ?",
+                               (sha, sha)).fetchone()
+        return int(row[0])
+
+    def history(self, job_id: int) -> list[dict[str, Any]]:
+        rows = self._db.execute("SELECT at, old, new, reason FROM history WHERE job_id = ?"
+                                " ORDER BY rowid", (job_id,)).fetchall()
+        return [dict(r) for r in rows]
+
+    def counts(self) -> dict[str, int]:
+        """Number of jobs in every state (all states present, zeros included)."""
+        out = {s.value: 0 for s in JobState}
+        for row in self._db.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state"):
+            out[row[0]] = int(row[1])
+        return out
+
+    def queue_length(self) -> int:
+        names = [s.value for s in WAITING]
+        row = self._db.execute(f"SELECT COUNT(*) FROM jobs WHERE state IN "
+                               f"({','.join('?' * len(names))})", names).fetchone()
+        return int(row[0])
+
+    def recover(self) -> list[Job]:
+        """After a restart: printing/paused jobs become ``interrupted``, slicing ``queued``.
+
+        Returns the jobs that changed.
+        """
+        changed = []
+        for job in self.list([JobState.PRINTING, JobState.PAUSED]):
+            line = job.acked_lines
+            changed.append(self.transition(
+                job.id, JobState.INTERRUPTED,
+                f"daemon stopped during the print at line {line}"
+                f" (sub-part {job.subpart}, layer {job.layer})"))
+        for job in self.list([JobState.SLICING]):
+            changed.append(self.transition(job.id, JobState.QUEUED,
+                                           "daemon stopped while slicing; re-queued"))
+        return changed
+
+    # -- checkpoints -----------------------------------------------------------------------
+
+    def add_checkpoint(self, job_id: int, subpart: int, parent: int | None, a: float, c: float,
+                       line: int, pose: dict[str, float] | None = None) -> Checkpoint:
+        cur = self._db.execute(
+            "INSERT INTO checkpoints (job_id, at, subpart, parent, a, c, line, pose)"
+            " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+            (job_id, self._clock(), subpart, parent, a, c, line, json.dumps(pose or {})))
+        row = self._db.execute("SELECT * FROM checkpoints WHERE seq = ?",
+                               (cur.lastrowid,)).fetchone()
+        return _checkpoint(row)
+
+    def checkpoints(self, job_id: int) -> list[Checkpoint]:
+        rows = self._db.execute("SELECT * FROM checkpoints WHERE job_id = ? ORDER BY seq",
+                                (job_id,)).fetchall()
+        return [_checkpoint(r) for r in rows]
+
+    def last_checkpoint(self, job_id: int) -> Checkpoint | None:
+        row = self._db.execute("SELECT * FROM checkpoints WHERE job_id = ? ORDER BY seq DESC"
+                               " LIMIT 1", (job_id,)).fetchone()
+        return None if row is None else _checkpoint(row)
+
+
+def _job(row: sqlite3.Row) -> Job:
+    d = dict(row)
+    for c in _JSON_COLUMNS:
+        d[c] = json.loads(d[c] or "{}")
+    d["state"] = JobState(d["state"])
+    return Job(**d)
+
+
+def _checkpoint(row: sqlite3.Row) -> Checkpoint:
+    d = dict(row)
+    d["pose"] = json.loads(d["pose"] or "{}")
+    return Checkpoint(**d)

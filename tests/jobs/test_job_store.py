@@ -1,0 +1,146 @@
+from __future__ import annotations
+
+import hashlib
+import sqlite3
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from hostd.jobs import JobNotFound, JobState, JobStateError, JobStore, Spool, SpoolError
+from hostd.jobs.states import ALLOWED, TERMINAL, can_transition, check_transition
+
+SHA = "a" * 64
+
+
+@pytest.fixture
+def store(tmp_path):
+    s = JobStore(tmp_path / "jobs.db")
+    yield s
+    s.close()
+
+
+def test_add_get_list_and_history(store):
+    job = store.add("part.gcode", "gcode", SHA, gcode_sha=SHA)
+    assert job.state is JobState.QUEUED and job.id == 1
+    store.transition(job.id, JobState.READY, "g-code needs no slicing")
+    store.transition(job.id, JobState.PRINTING)
+    got = store.get(job.id)
+    assert got.state is JobState.PRINTING and got.started_at is not None
+    hist = [(h["old"], h["new"]) for h in store.history(job.id)]
+    assert hist == [(None, "queued"), ("queued", "ready"), ("ready", "printing")]
+    assert [j.id for j in store.list()] == [1]
+    assert store.list([JobState.QUEUED]) == []
+
+
+def test_illegal_transition_raises_and_changes_nothing(store):
+    job = store.add("x.stl", "stl", SHA)
+    with pytest.raises(JobStateError):
+        store.transition(job.id, JobState.PAUSED)
+    assert store.get(job.id).state is JobState.QUEUED
+    assert len(store.history(job.id)) == 1
+
+
+def test_terminal_states_have_no_exit():
+    for s in TERMINAL:
+        for t in JobState:
+            assert not can_transition(s, t)
+    assert {JobState.COMPLETED, JobState.FAILED, JobState.CANCELLED} == set(TERMINAL)
+
+
+@given(st.lists(st.sampled_from(list(JobState)), max_size=12))
+def test_state_machine_walk_follows_table(steps):
+    state = JobState.QUEUED
+    for nxt in steps:
+        if nxt in ALLOWED[state]:
+            check_transition(state, nxt)
+            state = nxt
+        else:
+            with pytest.raises(JobStateError):
+                check_transition(state, nxt)
+
+
+def test_progress_json_columns_and_checkpoints(store):
+    job = store.add("x.gcode", "gcode", SHA, estimate={"time_s": 12.0})
+    store.update(job.id, acked_lines=10, total_lines=40, subpart=1, layer=3,
+                 modal={"X": 1.0, "absolute": True})
+    got = store.get(job.id)
+    assert got.to_dict()["progress"] == 0.25 and got.modal["X"] == 1.0
+    assert got.estimate == {"time_s": 12.0}
+    store.add_checkpoint(job.id, 1, 0, 30.0, 90.0, 17, {"x": 1.0, "y": 2.0, "z": 3.0})
+    store.add_checkpoint(job.id, 2, 0, 45.0, 180.0, 33)
+    cp = store.last_checkpoint(job.id)
+    assert cp is not None and (cp.subpart, cp.a, cp.c, cp.line) == (2, 45.0, 180.0, 33)
+    assert [c.subpart for c in store.checkpoints(job.id)] == [1, 2]
+
+
+def test_recover_marks_printing_interrupted_and_requeues_slicing(tmp_path):
+    path = tmp_path / "jobs.db"
+    s = JobStore(path)
+    a = s.add("a.gcode", "gcode", SHA)
+    b = s.add("b.stl", "stl", SHA)
+    c = s.add("c.gcode", "gcode", SHA)
+    s.transition(a.id, JobState.READY)
+    s.transition(a.id, JobState.PRINTING)
+    s.update(a.id, acked_lines=123, subpart=2, layer=7)
+    s.transition(b.id, JobState.SLICING)
+    # no close: simulate a crash; a new connection must see every committed write
+    s2 = JobStore(path)
+    changed = {j.id: j.state for j in s2.recover()}
+    assert changed == {a.id: JobState.INTERRUPTED, b.id: JobState.QUEUED}
+    got = s2.get(a.id)
+    assert got.acked_lines == 123 and "line 123" in got.reason
+    assert s2.get(c.id).state is JobState.QUEUED
+    s.close()
+    s2.close()
+
+
+def test_delete_refuses_active_job(store):
+    job = store.add("a.gcode", "gcode", SHA)
+    store.transition(job.id, JobState.READY)
+    store.transition(job.id, JobState.PRINTING)
+    with pytest.raises(Exception, match="cancel it first"):
+        store.delete(job.id)
+    store.transition(job.id, JobState.CANCELLED, "operator")
+    store.delete(job.id)
+    with pytest.raises(JobNotFound):
+        store.get(job.id)
+
+
+def test_wal_mode_and_schema_version(tmp_path):
+    path = tmp_path / "jobs.db"
+    JobStore(path).close()
+    db = sqlite3.connect(path)
+    assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    assert db.execute("PRAGMA user_version").fetchone()[0] == 1
+    db.execute("PRAGMA user_version=99")
+    db.close()
+    with pytest.raises(Exception, match="schema 99"):
+        JobStore(path)
+
+
+def test_counts_and_queue_length(store):
+    for i in range(3):
+        store.add(f"{i}.gcode", "gcode", SHA)
+    store.transition(1, JobState.CANCELLED)
+    assert store.counts()["queued"] == 2 and store.counts()["cancelled"] == 1
+    assert store.queue_length() == 2
+
+
+def test_spool_content_addressed(tmp_path):
+    sp = Spool(tmp_path / "spool", max_bytes=2048)
+    data = b"G1 X1\n"
+    digest = sp.put(data, ".gcode")
+    assert digest == hashlib.sha256(data).hexdigest()
+    assert sp.put(data, ".gcode") == digest
+    assert sp.read(digest, ".gcode") == data
+    assert sp.usage() == {"files": 1, "bytes": len(data)}
+    with pytest.raises(SpoolError, match="empty"):
+        sp.put(b"", ".gcode")
+    with pytest.raises(SpoolError, match="exceeds"):
+        sp.put(b"x" * 2049, ".gcode")
+    with pytest.raises(SpoolError, match="bad spool name"):
+        sp.path("../../etc/passwd", ".gcode")
+    sp.remove(digest, ".gcode")
+    with pytest.raises(SpoolError, match="missing"):
+        sp.read(digest, ".gcode")
