@@ -1,0 +1,114 @@
+"""A prometheus-client collector that renders :data:`hostd.metrics.specs.SPECS` from a snapshot.
+
+The collector calls ``snapshot()`` once per scrape and yields metric families built with
+prometheus-client's own classes; a value missing from the snapshot is simply not exported.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Iterator, Mapping
+from typing import Any
+
+from prometheus_client.core import (
+    CounterMetricFamily,
+    GaugeMetricFamily,
+    HistogramMetricFamily,
+    InfoMetricFamily,
+    Metric,
+    StateSetMetricFamily,
+)
+from prometheus_client.registry import Collector, CollectorRegistry
+
+from hostd.metrics.specs import JOB_STATES, SPECS, Spec
+
+Snapshot = Mapping[str, Any]
+
+
+def lookup(snapshot: Snapshot, path: str) -> Any:
+    """The value at a dotted path, or ``None`` where any step is missing."""
+    node: Any = snapshot
+    for part in path.split("."):
+        if not isinstance(node, Mapping) or part not in node:
+            return None
+        node = node[part]
+    return node
+
+
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool):
+        return float(value)
+    if isinstance(value, int | float) and math.isfinite(value):
+        return float(value)
+    return None
+
+
+def _family(spec: Spec, value: Any) -> Metric | None:
+    builder = _BUILDERS[spec.kind]
+    return builder(spec, value)
+
+
+def _scalar_family(spec: Spec, value: Any) -> Metric | None:
+    cls = CounterMetricFamily if spec.kind == "counter" else GaugeMetricFamily
+    if spec.label is None:
+        x = _number(value)
+        return None if x is None else cls(spec.name, spec.doc, value=x * spec.scale)
+    if not isinstance(value, Mapping):
+        return None
+    fam = cls(spec.name, spec.doc, labels=[spec.label])
+    for key, raw in sorted(value.items()):
+        x = _number(raw)
+        if x is not None:
+            fam.add_metric([str(key)], x * spec.scale)
+    return fam
+
+
+def _histogram_family(spec: Spec, value: Any) -> Metric | None:
+    if not isinstance(value, Mapping) or "buckets" not in value:
+        return None
+    buckets = [("+Inf" if math.isinf(le) else f"{le:g}", float(n)) for le, n in value["buckets"]]
+    return HistogramMetricFamily(spec.name, spec.doc, buckets=buckets,
+                                 sum_value=float(value.get("sum", 0.0)))
+
+
+def _info_family(spec: Spec, value: Any) -> Metric | None:
+    if not isinstance(value, Mapping):
+        return None
+    labels = {str(k): "" if v is None else str(v) for k, v in value.items()}
+    return InfoMetricFamily(spec.name, spec.doc, value=labels)
+
+
+def _stateset_family(spec: Spec, value: Any) -> Metric | None:
+    state = "idle" if value is None else str(value)
+    return StateSetMetricFamily(spec.name, spec.doc,
+                                value={s: s == state for s in JOB_STATES})
+
+
+_BUILDERS: dict[str, Callable[[Spec, Any], Metric | None]] = {
+    "gauge": _scalar_family,
+    "counter": _scalar_family,
+    "histogram": _histogram_family,
+    "info": _info_family,
+    "stateset": _stateset_family,
+}
+
+
+class SnapshotCollector(Collector):
+    """Exports :data:`SPECS` from ``snapshot()``, called once per scrape."""
+
+    def __init__(self, snapshot: Callable[[], Snapshot]) -> None:
+        self._snapshot = snapshot
+
+    def collect(self) -> Iterator[Metric]:
+        snap = self._snapshot()
+        for spec in SPECS:
+            family = _family(spec, lookup(snap, spec.path))
+            if family is not None:
+                yield family
+
+
+def make_registry(snapshot: Callable[[], Snapshot]) -> CollectorRegistry:
+    """A registry holding only hostd's collector (no process/platform defaults)."""
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(SnapshotCollector(snapshot))
+    return registry

@@ -1,0 +1,91 @@
+"""The exported metrics, declared once: name, type, help text and where each value lives.
+
+Every value is read from the daemon's status snapshot (a dict of component ``status()``
+results, see :func:`hostd.daemon` wiring), addressed by a dotted path such as
+``link.lines_sent``. Metrics never reach into a component's internals.
+Names follow Prometheus conventions: ``hostd_`` prefix, base units, ``_total`` on counters,
+labels of low cardinality only (the job id appears only in ``hostd_job_info``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Spec:
+    """One metric family.
+
+    kind : "gauge" | "counter" | "histogram" | "info" | "stateset"
+    path : dotted path to the value in the snapshot
+    label : for a dict-valued path, the label its keys become
+    scale : factor applied to numbers (e.g. mm → m)
+    """
+
+    name: str
+    kind: str
+    doc: str
+    path: str
+    label: str | None = None
+    scale: float = 1.0
+
+
+JOB_STATES = ("idle", "queued", "slicing", "ready", "printing", "paused", "completed", "failed",
+              "cancelled", "interrupted")
+
+SPECS: tuple[Spec, ...] = (
+    Spec("hostd", "info", "Daemon version, printer and firmware identity.", "daemon.info"),
+    Spec("hostd_firmware_capability", "gauge", "Firmware capabilities from M115 (1 = on).",
+         "link.capabilities", label="capability"),
+    Spec("hostd_job", "info", "Identity of the current job (id, name).", "jobs.current.info"),
+    Spec("hostd_job_state", "stateset", "State of the current job.", "jobs.current.state"),
+    Spec("hostd_job_progress_ratio", "gauge", "Acknowledged lines over total lines (0..1).",
+         "jobs.current.progress"),
+    Spec("hostd_job_subpart", "gauge", "Index of the sub-part being printed.",
+         "jobs.current.subpart"),
+    Spec("hostd_job_subparts", "gauge", "Number of sub-parts of the current job.",
+         "jobs.current.subparts_total"),
+    Spec("hostd_job_layer", "gauge", "Index of the layer being printed in its sub-part.",
+         "jobs.current.layer"),
+    Spec("hostd_job_layers", "gauge", "Number of layers of the current job.",
+         "jobs.current.layers_total"),
+    Spec("hostd_job_elapsed_seconds", "gauge", "Print time elapsed.",
+         "jobs.current.elapsed_s"),
+    Spec("hostd_job_remaining_seconds", "gauge", "Estimated print time remaining.",
+         "jobs.current.remaining_s"),
+    Spec("hostd_job_filament_used_meters", "gauge", "Filament fed so far in the current job.",
+         "jobs.current.filament_mm", scale=1e-3),
+    Spec("hostd_queue_length", "gauge", "Jobs waiting (queued, slicing or ready).",
+         "jobs.queue_length"),
+    Spec("hostd_jobs_finished_total", "counter", "Jobs finished, by outcome.",
+         "jobs.finished", label="outcome"),
+    Spec("hostd_slicing_duration_seconds", "histogram", "Wall time of slicing jobs.",
+         "slicer.durations"),
+    Spec("hostd_transitions_total", "counter", "Rotate/return transitions run as transactions.",
+         "jobs.transitions.total"),
+    Spec("hostd_transition_failures_total", "counter", "Transitions whose readback mismatched.",
+         "jobs.transitions.failed"),
+    Spec("hostd_serial_link_up", "gauge", "1 while the firmware link is connected.",
+         "link.connected"),
+    Spec("hostd_serial_lines_sent_total", "counter", "Lines written to the firmware.",
+         "link.lines_sent"),
+    Spec("hostd_serial_lines_acknowledged_total", "counter", "Lines the firmware acknowledged.",
+         "link.lines_acked"),
+    Spec("hostd_serial_lines_resent_total", "counter", "Lines sent again after a resend request.",
+         "link.lines_resent"),
+    Spec("hostd_serial_checksum_errors_total", "counter", "Checksum/line-number errors reported.",
+         "link.checksum_errors"),
+    Spec("hostd_serial_timeouts_total", "counter", "Acknowledgement timeouts.", "link.timeouts"),
+    Spec("hostd_serial_reconnects_total", "counter", "Reconnections of the serial port.",
+         "link.reconnects"),
+    Spec("hostd_serial_window_bytes", "gauge", "Bytes the send window may hold in flight.",
+         "link.window_bytes"),
+    Spec("hostd_serial_ok_roundtrip_seconds", "histogram", "Time from a line's send to its ok.",
+         "link.rtt"),
+    Spec("hostd_temperature_celsius", "gauge", "Measured heater temperature.",
+         "link.temperatures.actual", label="heater"),
+    Spec("hostd_temperature_target_celsius", "gauge", "Heater set point.",
+         "link.temperatures.target", label="heater"),
+    Spec("hostd_axis_position_degrees", "gauge", "Rotary axis position (A tilt, C rotation).",
+         "link.rotary", label="axis"),
+)

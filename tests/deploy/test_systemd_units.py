@@ -1,0 +1,63 @@
+from __future__ import annotations
+
+import configparser
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+UNITS = ROOT / "systemd"
+analyze = shutil.which("systemd-analyze")
+needs_systemd = pytest.mark.skipif(analyze is None, reason="systemd-analyze not installed")
+
+
+def _service() -> configparser.ConfigParser:
+    parser = configparser.ConfigParser(strict=False, interpolation=None)
+    parser.optionxform = str  # type: ignore[assignment,method-assign]
+    parser.read(UNITS / "hostd.service")
+    return parser
+
+
+def test_service_has_the_required_settings() -> None:
+    svc = _service()["Service"]
+    assert svc["Type"] == "notify"
+    assert svc["Restart"] == "on-failure"
+    assert "dialout" in svc["SupplementaryGroups"]
+    for key in ("RuntimeDirectory", "StateDirectory", "WatchdogSec", "NoNewPrivileges",
+                "ProtectSystem", "ProtectHome", "PrivateTmp", "RestrictAddressFamilies",
+                "DeviceAllow"):
+        assert key in svc, key
+
+
+def _installable(tmp_path: Path) -> Path:
+    """Copies of the units whose ExecStart points at an executable that exists here."""
+    exe = shutil.which("true") or "/bin/true"
+    for unit in UNITS.iterdir():
+        text = re.sub(r"/opt/hostd/bin/hostd\b", exe, unit.read_text())
+        (tmp_path / unit.name).write_text(text)
+    return tmp_path
+
+
+@needs_systemd
+def test_units_verify(tmp_path: Path) -> None:
+    units = _installable(tmp_path)
+    res = subprocess.run([analyze, "verify", str(units / "hostd.service"),
+                          str(units / "hostd.socket")], capture_output=True, text=True,
+                         timeout=60)
+    problems = [ln for ln in res.stderr.splitlines() if "hostd" in ln]
+    assert res.returncode == 0 and not problems, res.stderr
+
+
+@needs_systemd
+def test_security_exposure_below_three(tmp_path: Path) -> None:
+    units = _installable(tmp_path)
+    res = subprocess.run([analyze, "security", "--offline=true", "--no-pager",
+                          str(units / "hostd.service")], capture_output=True, text=True,
+                         timeout=60)
+    match = re.search(r"Overall exposure level for hostd\.service: ([0-9.]+)", res.stdout)
+    if match is None:
+        pytest.skip(f"this systemd cannot score unit files offline: {res.stderr.strip()[:200]}")
+    assert float(match.group(1)) < 3.0

@@ -1,0 +1,111 @@
+from __future__ import annotations
+
+import asyncio
+import urllib.request
+
+import pytest
+from prometheus_client import generate_latest
+from prometheus_client.parser import text_string_to_metric_families
+
+from hostd.metrics.collector import lookup, make_registry
+from hostd.metrics.server import MetricsServer
+from hostd.metrics.specs import SPECS
+from hostd.stats import Buckets
+
+UNITS = ("_seconds", "_celsius", "_meters", "_degrees", "_bytes", "_ratio", "_total")
+
+
+def full_snapshot() -> dict:
+    rtt = Buckets((0.01, 0.1))
+    for x in (0.005, 0.05, 0.5):
+        rtt.observe(x)
+    return {
+        "daemon": {"info": {"version": "0.1.0", "firmware_name": "hostd-sim"}},
+        "link": {"connected": True, "capabilities": {"AUTOREPORT_TEMP": True, "EEPROM": False},
+                 "lines_sent": 120, "lines_acked": 118, "lines_resent": 3,
+                 "checksum_errors": 2, "timeouts": 1, "reconnects": 0, "window_bytes": 127,
+                 "rtt": rtt.snapshot(),
+                 "temperatures": {"actual": {"hotend": 209.5, "bed": 60.1},
+                                  "target": {"hotend": 210.0, "bed": 60.0}},
+                 "rotary": {"a": 45.0, "c": -90.0}},
+        "jobs": {"queue_length": 2, "finished": {"completed": 4, "failed": 1},
+                 "transitions": {"total": 3, "failed": 0},
+                 "current": {"info": {"id": "j1", "name": "pipe"}, "state": "printing",
+                             "progress": 0.25, "subpart": 1, "subparts_total": 3, "layer": 7,
+                             "layers_total": 900, "elapsed_s": 12.0, "remaining_s": 36.0,
+                             "filament_mm": 2500.0}},
+        "slicer": {"durations": Buckets((1.0, 10.0)).snapshot()},
+    }
+
+
+def parse(snapshot: dict) -> dict:
+    text = generate_latest(make_registry(lambda: snapshot)).decode()
+    return {f.name: f for f in text_string_to_metric_families(text)}
+
+
+def test_every_spec_is_exported_with_its_type() -> None:
+    families = parse(full_snapshot())
+    for spec in SPECS:
+        # The text format (0.0.4) renders info and stateset families as gauges.
+        name = {"counter": spec.name.removesuffix("_total"),
+                "info": f"{spec.name}_info"}.get(spec.kind, spec.name)
+        assert name in families, spec.name
+        expected = "gauge" if spec.kind in ("info", "stateset") else spec.kind
+        assert families[name].type == expected, spec.name
+
+
+def test_names_follow_conventions() -> None:
+    for spec in SPECS:
+        assert spec.name.startswith("hostd")
+        assert (spec.kind == "counter") == spec.name.endswith("_total"), spec.name
+        assert spec.label != "job", "job ids only in the info metric"
+    unit_names = [s.name for s in SPECS if s.kind in ("gauge", "histogram") and s.label is None]
+    assert any(n.endswith(UNITS) for n in unit_names)
+
+
+def test_values_come_from_the_snapshot() -> None:
+    snap = full_snapshot()
+    fam = parse(snap)
+    assert fam["hostd_serial_lines_sent"].samples[0].value == 120
+    assert fam["hostd_job_filament_used_meters"].samples[0].value == pytest.approx(2.5)
+    temps = {s.labels["heater"]: s.value for s in fam["hostd_temperature_celsius"].samples}
+    assert temps == {"hotend": 209.5, "bed": 60.1}
+    state = {s.labels["hostd_job_state"]: s.value for s in fam["hostd_job_state"].samples}
+    assert state["printing"] == 1 and sum(state.values()) == 1
+    rtt = {s.labels.get("le"): s.value for s in fam["hostd_serial_ok_roundtrip_seconds"].samples
+           if s.name.endswith("_bucket")}
+    assert rtt == {"0.01": 1, "0.1": 2, "+Inf": 3}
+
+
+def test_missing_values_are_left_out_not_invented() -> None:
+    fam = parse({"link": {"connected": False}})
+    assert fam["hostd_serial_link_up"].samples[0].value == 0
+    assert "hostd_serial_lines_sent" not in fam
+    assert "hostd_job_progress_ratio" not in fam
+
+
+def test_lookup_walks_dotted_paths() -> None:
+    assert lookup({"a": {"b": {"c": 3}}}, "a.b.c") == 3
+    assert lookup({"a": {"b": 1}}, "a.b.c") is None
+    assert lookup({}, "x") is None
+
+
+@pytest.mark.asyncio
+async def test_http_endpoint_reads_snapshot_on_the_loop() -> None:
+    calls: list[int] = []
+
+    def snapshot() -> dict:
+        calls.append(1)
+        return full_snapshot()
+
+    server = MetricsServer("127.0.0.1", 0, snapshot)
+    server.start()
+    try:
+        url = f"http://127.0.0.1:{server.port}/metrics"
+        async with asyncio.timeout(20):
+            body = await asyncio.to_thread(lambda: urllib.request.urlopen(url, timeout=10).read())
+        names = {f.name for f in text_string_to_metric_families(body.decode())}
+        assert "hostd_job_progress_ratio" in names
+        assert calls and server.status()["scrapes"] == len(calls)
+    finally:
+        server.stop()
