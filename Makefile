@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: all venv test lint pytest demo bench clean
+.PHONY: all venv test lint pytest demo bench docs clean
 
 all: test
 
@@ -26,6 +26,10 @@ test: lint pytest
 
 demo: $(STAMP)
 	$(BIN)/python -m hostd.demo
+
+docs: $(STAMP)
+	$(BIN)/python -m hostd.config.docs yaml > config/hostd.yaml
+	$(BIN)/python -m hostd.config.docs readme README.md
 
 bench: $(STAMP)
 	for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done

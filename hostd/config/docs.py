@@ -1,7 +1,8 @@
 """Render the schema as a commented default YAML file or as a Markdown key reference.
 
 ``python -m hostd.config.docs yaml`` prints the text of ``config/hostd.yaml``;
-``python -m hostd.config.docs markdown`` prints the README's configuration table. The tests
+``python -m hostd.config.docs markdown`` prints the README's configuration table;
+``python -m hostd.config.docs readme README.md`` regenerates the README's tables. The tests
 check that both shipped texts equal what this module renders, so they cannot drift.
 """
 
@@ -9,6 +10,7 @@ from __future__ import annotations
 
 import sys
 import textwrap
+from pathlib import Path
 from typing import Any
 
 from hostd.config.fields import Field, Records
@@ -75,10 +77,36 @@ def render_markdown() -> str:
     return "\n".join(rows) + "\n"
 
 
+def readme_blocks() -> dict[str, str]:
+    """The generated blocks of the README, by marker name."""
+    from hostd.metrics.docs import render_markdown as metrics_markdown
+
+    return {"config-table": render_markdown(), "metrics-table": metrics_markdown()}
+
+
+def sync_readme(text: str) -> str:
+    """``text`` with every ``<!-- BEGIN name -->…<!-- END name -->`` block regenerated."""
+    for name, body in readme_blocks().items():
+        begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
+        head, sep, rest = text.partition(begin)
+        if not sep:
+            continue
+        _, sep2, tail = rest.partition(end)
+        if not sep2:
+            raise ValueError(f"README: {begin} without {end}")
+        text = f"{head}{begin}\n{body}{end}{tail}"
+    return text
+
+
 def main(argv: list[str]) -> int:
     what = argv[0] if argv else "yaml"
+    if what == "readme" and len(argv) == 2:
+        path = Path(argv[1])
+        path.write_text(sync_readme(path.read_text()))
+        return 0
     if what not in ("yaml", "markdown"):
-        print("usage: python -m hostd.config.docs yaml|markdown", file=sys.stderr)
+        print("usage: python -m hostd.config.docs yaml|markdown|readme README.md",
+              file=sys.stderr)
         return 2
     sys.stdout.write(render_yaml() if what == "yaml" else render_markdown())
     return 0

@@ -112,3 +112,12 @@ def test_check_config_cli_ok_and_error(tmp_path: Path) -> None:
     assert res.returncode == 2
     assert res.stdout.strip() == f"{bad}:3: machine.a_limits: -120 is below -90"
     assert "Traceback" not in res.stderr
+
+
+def test_readme_tables_are_generated_from_the_schema_and_metrics() -> None:
+    from hostd.config.docs import readme_blocks, sync_readme
+
+    readme = (ROOT / "README.md").read_text()
+    assert sync_readme(readme) == readme, "run `make docs` to regenerate the README tables"
+    for name in readme_blocks():
+        assert f"<!-- BEGIN {name} -->" in readme

@@ -1,0 +1,16 @@
+"""Render the metrics table of the README from :data:`hostd.metrics.specs.SPECS`."""
+
+from __future__ import annotations
+
+from hostd.metrics.specs import SPECS
+
+_EXPOSED = {"info": "info (`{name}_info`)", "stateset": "stateset (gauge per state)"}
+
+
+def render_markdown() -> str:
+    rows = ["| metric | type | labels | meaning |", "|---|---|---|---|"]
+    for s in SPECS:
+        kind = _EXPOSED.get(s.kind, s.kind).format(name=s.name)
+        labels = s.label or ("state" if s.kind == "stateset" else "")
+        rows.append(f"| `{s.name}` | {kind} | {labels} | {s.doc} |")
+    return "\n".join(rows) + "\n"
