@@ -1,0 +1,259 @@
+"""JSON-RPC 2.0: message framing, the declarative endpoint registry, and THE error table.
+
+Every exception a handler raises is turned into a JSON-RPC error by :func:`error_for`, using
+the single table :data:`ERROR_CODES`; nothing else in the daemon picks error codes.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+PARSE_ERROR = -32700
+INVALID_REQUEST = -32600
+METHOD_NOT_FOUND = -32601
+INVALID_PARAMS = -32602
+INTERNAL_ERROR = -32603
+# application errors (-32000 .. -32099 are reserved for implementations)
+JOB_NOT_FOUND = -32001
+JOB_STATE = -32002
+UPLOAD_REJECTED = -32003
+PRINTER_BUSY = -32004
+PRINTER_ERROR = -32005
+SLICE_FAILED = -32006
+MESSAGE_TOO_LARGE = -32007
+SHUTTING_DOWN = -32008
+
+
+class RpcError(Exception):
+    """An error with an explicit JSON-RPC code (bad params, unknown method, ...)."""
+
+    def __init__(self, code: int, message: str, data: Any = None) -> None:
+        super().__init__(message)
+        self.code = code
+        self.message = message
+        self.data = data
+
+
+class PrinterBusy(Exception):
+    """A request that conflicts with the print in progress (e.g. raw G-code while printing)."""
+
+
+class ShuttingDown(Exception):
+    """The daemon is stopping and takes no new work."""
+
+
+def _error_table() -> tuple[tuple[type[BaseException], int], ...]:
+    """Exception classes → codes, most specific first. THE one place codes are chosen."""
+    from hostd.control.events import EventError
+    from hostd.jobs.spool import SpoolError
+    from hostd.jobs.states import JobStateError
+    from hostd.jobs.store import JobNotFound, StoreError
+    from hostd.link.errors import LinkError
+    from hostd.printer.errors import PrinterError
+    from hostd.slicing_worker import SliceError
+
+    return (
+        (RpcError, 0),  # carries its own code
+        (JobNotFound, JOB_NOT_FOUND),
+        (JobStateError, JOB_STATE),
+        (StoreError, JOB_STATE),
+        (SpoolError, UPLOAD_REJECTED),
+        (SliceError, UPLOAD_REJECTED),
+        (PrinterBusy, PRINTER_BUSY),
+        (ShuttingDown, SHUTTING_DOWN),
+        (PrinterError, PRINTER_ERROR),
+        (LinkError, PRINTER_ERROR),
+        (EventError, INVALID_PARAMS),
+    )
+
+
+_TABLE: tuple[tuple[type[BaseException], int], ...] | None = None
+
+
+def error_for(exc: BaseException) -> dict[str, Any]:
+    """The JSON-RPC ``error`` object for ``exc``; unknown exceptions become internal errors."""
+    global _TABLE
+    if _TABLE is None:
+        _TABLE = _error_table()
+    if isinstance(exc, RpcError):
+        err: dict[str, Any] = {"code": exc.code, "message": exc.message}
+        if exc.data is not None:
+            err["data"] = exc.data
+        return err
+    for cls, code in _TABLE:
+        if isinstance(exc, cls):
+            return {"code": code, "message": str(exc) or cls.__name__}
+    log.error("internal error", exc_info=exc)
+    return {"code": INTERNAL_ERROR, "message": f"internal error: {type(exc).__name__}"}
+
+
+# -- the registry ----------------------------------------------------------------------------
+
+_TYPES: dict[str, tuple[type, ...]] = {
+    "int": (int,), "number": (int, float), "str": (str,), "bool": (bool,),
+    "list": (list,), "dict": (dict,),
+}
+
+
+@dataclass(frozen=True)
+class Param:
+    """One named parameter: JSON type (``int``, ``number``, ``str``, ``bool``, ``list``,
+    ``dict``), whether it is required, its default, and allowed values."""
+
+    name: str
+    type: str
+    required: bool = True
+    default: Any = None
+    choices: tuple[Any, ...] | None = None
+    doc: str = ""
+
+    def check(self, value: Any) -> Any:
+        types = _TYPES[self.type]
+        if isinstance(value, bool) and bool not in types:
+            raise RpcError(INVALID_PARAMS, f"{self.name}: expected {self.type}, got bool")
+        if value is None and not self.required:
+            return self.default
+        if not isinstance(value, types):
+            raise RpcError(INVALID_PARAMS,
+                           f"{self.name}: expected {self.type}, got {type(value).__name__}")
+        if self.choices is not None and value not in self.choices:
+            raise RpcError(INVALID_PARAMS, f"{self.name}: must be one of "
+                           f"{', '.join(map(str, self.choices))}")
+        return value
+
+
+Handler = Callable[..., Awaitable[Any]]
+
+
+@dataclass(frozen=True)
+class Endpoint:
+    method: str
+    handler: Handler
+    params: tuple[Param, ...] = ()
+    doc: str = ""
+
+    def bind(self, params: Any) -> dict[str, Any]:
+        """Validate ``params`` (object or array) into keyword arguments."""
+        if params is None:
+            params = {}
+        if isinstance(params, list):
+            if len(params) > len(self.params):
+                raise RpcError(INVALID_PARAMS, f"{self.method} takes at most "
+                               f"{len(self.params)} parameters")
+            params = {p.name: v for p, v in zip(self.params, params, strict=False)}
+        if not isinstance(params, dict):
+            raise RpcError(INVALID_PARAMS, "params must be an object or an array")
+        known = {p.name for p in self.params}
+        extra = sorted(set(params) - known)
+        if extra:
+            raise RpcError(INVALID_PARAMS, f"unknown parameter(s): {', '.join(extra)}")
+        out = {}
+        for p in self.params:
+            if p.name in params:
+                out[p.name] = p.check(params[p.name])
+            elif p.required:
+                raise RpcError(INVALID_PARAMS, f"missing parameter: {p.name}")
+            else:
+                out[p.name] = p.default
+        return out
+
+
+@dataclass
+class Registry:
+    """Method name → :class:`Endpoint`; handlers are ``async def h(ctx, **params)``."""
+
+    endpoints: dict[str, Endpoint] = field(default_factory=dict)
+
+    def add(self, method: str, handler: Handler, *params: Param, doc: str = "") -> None:
+        if method in self.endpoints:
+            raise ValueError(f"{method} registered twice")
+        self.endpoints[method] = Endpoint(method, handler, tuple(params), doc)
+
+    def describe(self) -> list[dict[str, Any]]:
+        return [{"method": e.method, "doc": e.doc,
+                 "params": [{"name": p.name, "type": p.type, "required": p.required}
+                            for p in e.params]}
+                for e in self.endpoints.values()]
+
+    async def dispatch(self, raw: str | bytes, ctx: Any) -> str | None:
+        """One line in, one response line out (``None`` when nothing is to be answered)."""
+        try:
+            message = json.loads(raw)
+        except (ValueError, UnicodeDecodeError) as exc:
+            return encode(response(None, error={"code": PARSE_ERROR,
+                                                "message": f"parse error: {exc}"}))
+        if isinstance(message, list):
+            if not message:
+                return encode(response(None, error={"code": INVALID_REQUEST,
+                                                    "message": "empty batch"}))
+            replies = [r for r in [await self._one(m, ctx) for m in message] if r is not None]
+            return _encode_safe(replies) if replies else None
+        reply = await self._one(message, ctx)
+        return None if reply is None else _encode_safe(reply)
+
+    async def _one(self, message: Any, ctx: Any) -> dict[str, Any] | None:
+        req_id = message.get("id") if isinstance(message, dict) else None
+        if not _valid_id(req_id):
+            req_id = None
+        try:
+            method, params, notify = _validate(message)
+            endpoint = self.endpoints.get(method)
+            if endpoint is None:
+                raise RpcError(METHOD_NOT_FOUND, f"method not found: {method}")
+            result = await endpoint.handler(ctx, **endpoint.bind(params))
+        except Exception as exc:  # every handler failure becomes a JSON-RPC error
+            if isinstance(message, dict) and "id" not in message and _is_request(message):
+                return None
+            return response(req_id, error=error_for(exc))
+        return None if notify else response(req_id, result=result)
+
+
+def _encode_safe(message: Any) -> str:
+    try:
+        return encode(message)
+    except (TypeError, ValueError) as exc:  # a result JSON cannot carry (NaN, bytes, ...)
+        log.error("unencodable result: %s", exc)
+        req_id = message.get("id") if isinstance(message, dict) else None
+        return encode(response(req_id, error={"code": INTERNAL_ERROR,
+                                              "message": "internal error: unencodable result"}))
+
+
+def _valid_id(value: Any) -> bool:
+    return value is None or (isinstance(value, (str, int)) and not isinstance(value, bool))
+
+
+def _is_request(m: dict[str, Any]) -> bool:
+    return m.get("jsonrpc") == "2.0" and isinstance(m.get("method"), str)
+
+
+def _validate(message: Any) -> tuple[str, Any, bool]:
+    if not isinstance(message, dict) or message.get("jsonrpc") != "2.0":
+        raise RpcError(INVALID_REQUEST, "invalid request: not a JSON-RPC 2.0 object")
+    method = message.get("method")
+    if not isinstance(method, str):
+        raise RpcError(INVALID_REQUEST, "invalid request: method must be a string")
+    if "id" in message and not _valid_id(message["id"]):
+        raise RpcError(INVALID_REQUEST, "invalid request: id must be a string, number or null")
+    return method, message.get("params"), "id" not in message
+
+
+def response(req_id: Any, result: Any = None, error: dict[str, Any] | None = None
+             ) -> dict[str, Any]:
+    if error is not None:
+        return {"jsonrpc": "2.0", "id": req_id, "error": error}
+    return {"jsonrpc": "2.0", "id": req_id, "result": result}
+
+
+def notification(method: str, params: Any) -> dict[str, Any]:
+    return {"jsonrpc": "2.0", "method": method, "params": params}
+
+
+def encode(message: Any) -> str:
+    """One message as one line (``\\n``-terminated, no raw newlines inside)."""
+    return json.dumps(message, separators=(",", ":"), allow_nan=False) + "\n"

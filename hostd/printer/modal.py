@@ -1,0 +1,180 @@
+"""A pure tracker of the firmware's modal state as the streamed G-code leaves it.
+
+It follows G90/G91, M82/M83, G92, G0/G1 targets (X Y Z A C E F), G28, temperatures and the part
+fan, so a pause can record exactly what must be restored, and a resume from any line can
+rebuild the state by replaying the file up to it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+AXES = ("X", "Y", "Z", "A", "C")
+
+
+def words(command: str) -> tuple[str, dict[str, float]]:
+    """``"G1 X1 Y-2.5"`` → ``("G1", {"X": 1.0, "Y": -2.5})``; unparsable words are skipped."""
+    parts = command.split()
+    if not parts:
+        return "", {}
+    code = _code(parts[0])
+    args: dict[str, float] = {}
+    for w in parts[1:]:
+        if len(w) >= 2 and w[0].isalpha():
+            try:
+                args[w[0].upper()] = float(w[1:])
+            except ValueError:
+                continue
+        elif len(w) == 1 and w.isalpha():
+            args[w.upper()] = float("nan")  # bare axis letter (G28 X)
+    return code, args
+
+
+def _code(word: str) -> str:
+    """Normalise ``G01``/``g1`` to ``G1``."""
+    w = word.upper()
+    if len(w) > 1 and w[0] in "GMT" and w[1:].replace(".", "", 1).isdigit():
+        num = w[1:].lstrip("0") or "0"
+        return w[0] + num
+    return w
+
+
+@dataclass
+class ModalState:
+    """The modal state of the machine; every field JSON-friendly."""
+
+    absolute: bool = True
+    e_absolute: bool = True
+    position: dict[str, float] = field(default_factory=lambda: dict.fromkeys((*AXES, "E"), 0.0))
+    feedrate: float | None = None
+    hotend: float = 0.0
+    bed: float = 0.0
+    fan: int = 0
+    homed: bool = False
+
+    def apply(self, command: str) -> None:
+        """Update from one (comment-free) G-code command."""
+        code, args = words(command)
+        handler = _HANDLERS.get(code)
+        if handler is not None:
+            handler(self, args)
+
+    def _move(self, args: dict[str, float]) -> None:
+        for axis in AXES:
+            if axis in args:
+                self.position[axis] = (args[axis] if self.absolute
+                                       else self.position[axis] + args[axis])
+        if "E" in args:
+            self.position["E"] = (args["E"] if self.e_absolute
+                                  else self.position["E"] + args["E"])
+        if "F" in args:
+            self.feedrate = args["F"]
+
+    def _set_position(self, args: dict[str, float]) -> None:
+        for axis in (*AXES, "E"):
+            if axis in args:
+                self.position[axis] = args[axis]
+
+    def _home(self, args: dict[str, float]) -> None:
+        named = [a for a in AXES if a in args] or list(AXES)
+        for axis in named:
+            self.position[axis] = 0.0
+        self.homed = True
+
+    def _abs(self, _args: dict[str, float]) -> None:
+        self.absolute = self.e_absolute = True
+
+    def _rel(self, _args: dict[str, float]) -> None:
+        self.absolute = self.e_absolute = False
+
+    def _e_abs(self, _args: dict[str, float]) -> None:
+        self.e_absolute = True
+
+    def _e_rel(self, _args: dict[str, float]) -> None:
+        self.e_absolute = False
+
+    def _hotend(self, args: dict[str, float]) -> None:
+        if "S" in args:
+            self.hotend = args["S"]
+
+    def _bed(self, args: dict[str, float]) -> None:
+        if "S" in args:
+            self.bed = args["S"]
+
+    def _fan_on(self, args: dict[str, float]) -> None:
+        self.fan = int(args.get("S", 255))
+
+    def _fan_off(self, _args: dict[str, float]) -> None:
+        self.fan = 0
+
+    def snapshot(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> ModalState:
+        state = cls()
+        for key, value in data.items():
+            if hasattr(state, key):
+                setattr(state, key, dict(value) if isinstance(value, dict) else value)
+        return state
+
+    def copy(self) -> ModalState:
+        return ModalState.from_dict(self.snapshot())
+
+    # -- command sequences -----------------------------------------------------------------
+
+    def pause_commands(self, retract: float, lift: float, z_max: float, retract_f: float,
+                       lift_f: float) -> list[str]:
+        """Retract and lift along machine Z only (A and C stay where they are)."""
+        z = min(self.position["Z"] + lift, z_max)
+        return ["M400", "M83", f"G1 E{-retract:.4f} F{retract_f:.0f}",
+                "G90", f"G1 Z{z:.4f} F{lift_f:.0f}", "M400"]
+
+    def resume_commands(self, retract: float, retract_f: float, travel_f: float,
+                        lift_f: float) -> list[str]:
+        """Come back over the recorded point, lower, unretract, restore every mode."""
+        p = self.position
+        out = ["G90", f"G1 X{p['X']:.4f} Y{p['Y']:.4f} F{travel_f:.0f}",
+               f"G1 Z{p['Z']:.4f} F{lift_f:.0f}", "M83", f"G1 E{retract:.4f} F{retract_f:.0f}"]
+        out += self.mode_commands()
+        return out
+
+    def mode_commands(self) -> list[str]:
+        """Commands that put the modes (not the position) back: G90/G91, M82/M83, E, F, fan."""
+        out = ["G90" if self.absolute else "G91", "M82" if self.e_absolute else "M83",
+               f"G92 E{self.position['E']:.5f}"]
+        if self.feedrate is not None:
+            out.append(f"G1 F{self.feedrate:.0f}")
+        out.append(f"M106 S{self.fan}" if self.fan else "M107")
+        return out
+
+    def restart_commands(self, safe_z: float, travel_f: float, rotary_f: float,
+                         lift_f: float) -> list[str]:
+        """From a cold or reset machine to this state: re-home, reheat, safe height, rotate,
+        approach the recorded X/Y, lower to Z, restore the modes."""
+        p = self.position
+        out = ["G28"]
+        if self.bed:
+            out.append(f"M140 S{self.bed:g}")
+        if self.hotend:
+            out.append(f"M104 S{self.hotend:g}")
+        if self.bed:
+            out.append(f"M190 S{self.bed:g}")
+        if self.hotend:
+            out.append(f"M109 S{self.hotend:g}")
+        out += ["G90", f"G0 Z{max(safe_z, p['Z']):.4f} F{lift_f:.0f}",
+                f"G0 A{p['A']:.4f} C{p['C']:.4f} F{rotary_f:.0f}",
+                f"G0 X{p['X']:.4f} Y{p['Y']:.4f} F{travel_f:.0f}",
+                f"G0 Z{p['Z']:.4f} F{lift_f:.0f}"]
+        return out + self.mode_commands()
+
+
+_HANDLERS = {
+    "G0": ModalState._move, "G1": ModalState._move, "G2": ModalState._move,
+    "G3": ModalState._move, "G92": ModalState._set_position, "G28": ModalState._home,
+    "G90": ModalState._abs, "G91": ModalState._rel, "M82": ModalState._e_abs,
+    "M83": ModalState._e_rel, "M104": ModalState._hotend, "M109": ModalState._hotend,
+    "M140": ModalState._bed, "M190": ModalState._bed, "M106": ModalState._fan_on,
+    "M107": ModalState._fan_off,
+}

@@ -1,0 +1,162 @@
+"""A G-code file as the streamer sees it: numbered commands plus the HOSTD markers.
+
+Pure: text in, :class:`Program` out. Markers (``;HOSTD_SUBPART {json}``, ``;HOSTD_LAYER``,
+``;HOSTD_ESTIMATE``, ``;HOSTD_TRANSITION`` … ``;HOSTD_TRANSITION_END``) are attached to the
+index of the next command, so progress, checkpoints and resume points are command indices.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+from hostd.link.framing import strip_gcode
+from hostd.printer.errors import ProgramError
+from hostd.printer.modal import ModalState
+
+MARK = ";HOSTD_"
+
+
+@dataclass(frozen=True)
+class Transition:
+    """A rotate/return block: commands ``start`` .. ``end - 1`` move to ``target``."""
+
+    start: int
+    end: int
+    subpart: int
+    parent: int | None
+    target: dict[str, float]  # X Y Z A C the block must reach (keys present only)
+    source_line: int
+
+
+@dataclass(frozen=True)
+class LayerMark:
+    index: int  # first command of the layer
+    subpart: int
+    layer: int
+
+
+@dataclass
+class Program:
+    """Commands (comment-free) with their file line numbers and the marker tables."""
+
+    commands: list[str] = field(default_factory=list)
+    source_lines: list[int] = field(default_factory=list)
+    layers: list[LayerMark] = field(default_factory=list)
+    subparts: dict[int, int] = field(default_factory=dict)  # sub-part → first command index
+    parents: dict[int, int | None] = field(default_factory=dict)
+    transitions: list[Transition] = field(default_factory=list)
+    estimate: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def total(self) -> int:
+        return len(self.commands)
+
+    def transition_at(self, index: int) -> Transition | None:
+        for t in self.transitions:
+            if t.start == index:
+                return t
+        return None
+
+    def layer_at(self, index: int) -> LayerMark | None:
+        """The layer that command ``index`` belongs to (``None`` before the first)."""
+        found = None
+        for mark in self.layers:
+            if mark.index > index:
+                break
+            found = mark
+        return found
+
+    def resume_index(self, index: int, scope: str) -> int:
+        """Where to restart when ``index`` was interrupted: start of its ``layer`` or
+        ``subpart``, or ``index`` itself for ``line``."""
+        if scope == "line":
+            return index
+        mark = self.layer_at(index)
+        if mark is None:
+            return 0
+        if scope == "layer":
+            return mark.index
+        if scope == "subpart":
+            first = [m.index for m in self.layers if m.subpart == mark.subpart]
+            return min(first)
+        raise ProgramError(f"unknown resume scope {scope!r} (line, layer or subpart)")
+
+    def modal_before(self, index: int) -> ModalState:
+        """The modal state the file leaves before command ``index`` runs."""
+        state = ModalState()
+        for cmd in self.commands[:index]:
+            state.apply(cmd)
+        return state
+
+
+def parse_program(text: str) -> Program:
+    """Read a G-code file; :class:`ProgramError` for malformed markers."""
+    prog = Program()
+    open_tr: dict[str, Any] | None = None
+    subpart = 0
+    for lineno, raw in enumerate(text.splitlines(), 1):
+        stripped = raw.strip()
+        if stripped.startswith(MARK):
+            open_tr, subpart = _marker(prog, stripped, lineno, open_tr, subpart)
+            continue
+        cmd = strip_gcode(raw)
+        if cmd is None:
+            continue
+        prog.commands.append(cmd)
+        prog.source_lines.append(lineno)
+    if open_tr is not None:
+        raise ProgramError(f"line {open_tr['line']}: HOSTD_TRANSITION without an END")
+    return prog
+
+
+def _marker(prog: Program, text: str, lineno: int, open_tr: dict[str, Any] | None,
+            subpart: int) -> tuple[dict[str, Any] | None, int]:
+    name, _, payload = text[len(MARK):].partition(" ")
+    index = len(prog.commands)
+    if name == "TRANSITION_END":
+        if open_tr is None:
+            raise ProgramError(f"line {lineno}: HOSTD_TRANSITION_END without a start")
+        prog.transitions.append(Transition(
+            open_tr["start"], index, open_tr["to"], open_tr["from"], open_tr["target"],
+            open_tr["line"]))
+        return None, subpart
+    data = _json(payload, lineno, name)
+    if name == "SUBPART":
+        subpart = _int(data, "index", lineno)
+        prog.subparts.setdefault(subpart, index)
+        prog.parents[subpart] = data.get("parent")
+    elif name == "LAYER":
+        subpart = int(data.get("subpart", subpart))
+        prog.layers.append(LayerMark(index, subpart, _int(data, "index", lineno)))
+    elif name == "ESTIMATE":
+        prog.estimate = {k: float(v) for k, v in data.items() if isinstance(v, (int, float))}
+    elif name == "TRANSITION":
+        if open_tr is not None:
+            raise ProgramError(f"line {lineno}: nested HOSTD_TRANSITION")
+        target = {k.upper(): float(data[k]) for k in ("x", "y", "z", "a", "c", "X", "Y", "Z",
+                                                        "A", "C") if k in data}
+        return {"start": index, "to": _int(data, "to", lineno), "from": data.get("from"),
+                "target": target, "line": lineno}, subpart
+    return open_tr, subpart
+
+
+def _json(payload: str, lineno: int, name: str) -> dict[str, Any]:
+    payload = payload.strip()
+    if not payload:
+        return {}
+    try:
+        data = json.loads(payload)
+    except ValueError:
+        raise ProgramError(f"line {lineno}: HOSTD_{name}: bad JSON") from None
+    if not isinstance(data, dict):
+        raise ProgramError(f"line {lineno}: HOSTD_{name}: expected a JSON object")
+    return data
+
+
+def _int(data: dict[str, Any], key: str, lineno: int) -> int:
+    value = data.get(key)
+    if not isinstance(value, int) or isinstance(value, bool):
+        raise ProgramError(f"line {lineno}: marker needs an integer {key!r}")
+    return value

@@ -1,0 +1,313 @@
+"""Feed one job's G-code to the printer: progress, pause/resume, cancel, transitions.
+
+The streamer is the only writer of job lines. It keeps at most ``lookahead`` lines submitted
+and not yet acknowledged, applies each command to its :class:`ModalState` when the firmware
+acknowledges it (so the tracked state is always the state of the acknowledged prefix), and
+between two lines it may stop: for a pause (retract, lift along Z, wait, restore), a cancel
+(the end script) or a rotate/return transition run as a transaction (M400, temperature check,
+block, M400, M114 readback, checkpoint).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+from collections import deque
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from hostd.link.replies import Ok, Position, Reply, Temperatures
+from hostd.printer.errors import PrinterError, TransitionFailed
+from hostd.printer.modal import ModalState
+from hostd.printer.program import Program, Transition
+
+log = logging.getLogger(__name__)
+
+
+class Port(Protocol):
+    """What the streamer needs from the serial link."""
+
+    async def send(self, command: str) -> Awaitable[None]:
+        """Queue one line (waiting for room); the result completes when it is acknowledged."""
+        ...
+
+    async def query(self, command: str) -> tuple[Reply, ...]:
+        """Send ``command``, wait for its ok, return the replies that arrived for it."""
+        ...
+
+
+@dataclass(frozen=True)
+class StreamSettings:
+    lookahead: int = 16
+    retract: float = 1.0
+    retract_f: float = 2100.0
+    lift: float = 10.0
+    lift_f: float = 600.0
+    travel_f: float = 7200.0
+    rotary_f: float = 3000.0
+    safe_height: float = 60.0
+    z_max: float = 700.0
+    position_tolerance: float = 0.05
+    angle_tolerance: float = 0.05
+    temperature_tolerance: float = 5.0
+    end_gcode: str = "M104 S0\nM140 S0\nM107\nG0 Z{safe_z} F3000\nG0 A0 C0 F3000\nM84\n"
+
+
+@dataclass
+class Hooks:
+    """Callbacks into the job manager (all synchronous and quick)."""
+
+    progress: Callable[[Streamer], None] = lambda s: None
+    paused: Callable[[Streamer, str], None] = lambda s, reason: None
+    resumed: Callable[[Streamer], None] = lambda s: None
+    checkpoint: Callable[[Streamer, Transition, dict[str, float]], None] = (
+        lambda s, t, pose: None)
+    event: Callable[[str, dict[str, Any]], None] = lambda name, data: None
+
+
+@dataclass
+class StreamStats:
+    transitions: int = 0
+    transition_failures: int = 0
+    extra_commands: list[str] = field(default_factory=list)
+
+
+class Streamer:
+    """Run ``program`` from command ``start`` on ``port``.
+
+    :meth:`run` returns ``"completed"`` or ``"cancelled"`` and raises
+    :class:`~hostd.link.errors.LinkError` or :class:`PrinterError` when the print cannot go on.
+    """
+
+    def __init__(self, port: Port, program: Program, settings: StreamSettings,
+                 hooks: Hooks | None = None, start: int = 0,
+                 modal: ModalState | None = None, prelude: list[str] | None = None) -> None:
+        self.port = port
+        self.program = program
+        self.settings = settings
+        self.hooks = hooks or Hooks()
+        self.start = start
+        self.acked = start  # commands 0 .. acked-1 are acknowledged
+        self.modal = modal if modal is not None else program.modal_before(start)
+        self.prelude = list(prelude or [])
+        mark = program.layer_at(start)
+        self.subpart: int | None = mark.subpart if mark else None
+        self.layer: int | None = mark.layer if mark else None
+        self.stats = StreamStats()
+        self.paused_modal: ModalState | None = None
+        self.pause_reason = ""
+        self._inflight: deque[tuple[int, Awaitable[None]]] = deque()
+        self._pause_req = asyncio.Event()
+        self._resume = asyncio.Event()
+        self._cancel = asyncio.Event()
+        self._needs_restart = False
+        self.state = "idle"
+
+    # -- control (from the job manager) --------------------------------------------------
+
+    def request_pause(self, reason: str = "paused by operator") -> None:
+        if self.state == "streaming":
+            self.pause_reason = reason
+            self._pause_req.set()
+
+    def request_resume(self) -> None:
+        self._resume.set()
+
+    def request_cancel(self) -> None:
+        self._cancel.set()
+        self._resume.set()
+
+    # -- the run ---------------------------------------------------------------------------
+
+    async def run(self) -> str:
+        self.state = "streaming"
+        for cmd in self.prelude:
+            await self._extra(cmd)
+        index = self.start
+        while index < self.program.total:
+            if self._cancel.is_set():
+                return await self._finish_cancel()
+            if self._pause_req.is_set():
+                await self._pause()
+                if self._cancel.is_set():
+                    return await self._finish_cancel()
+                continue
+            tr = self.program.transition_at(index)
+            if tr is not None:
+                ok = await self._transition(tr)
+                index = tr.end  # on a mismatch the resume re-homes and reaches the target
+                if not ok:
+                    await self._pause(move=False)
+                    if self._cancel.is_set():
+                        return await self._finish_cancel()
+                continue
+            await self._feed(index)
+            index += 1
+        await self._drain()
+        self.state = "done"
+        return "completed"
+
+    async def _feed(self, index: int) -> None:
+        fut = await self.port.send(self.program.commands[index])
+        self._inflight.append((index, fut))
+        while self._inflight and (len(self._inflight) > self.settings.lookahead
+                                  or _done(self._inflight[0][1])):
+            await self._ack_head()
+
+    async def _ack_head(self) -> None:
+        index, fut = self._inflight[0]
+        await fut
+        self._inflight.popleft()
+        self.modal.apply(self.program.commands[index])
+        self.acked = index + 1
+        self._track_layer(index)
+        self.hooks.progress(self)
+
+    def _track_layer(self, index: int) -> None:
+        mark = self.program.layer_at(index)
+        if mark is None:
+            return
+        if mark.subpart != self.subpart:
+            self.subpart, self.layer = mark.subpart, mark.layer
+            self.hooks.event("job.subpart", {"subpart": mark.subpart, "layer": mark.layer})
+        else:
+            self.layer = mark.layer
+
+    async def _drain(self) -> None:
+        while self._inflight:
+            await self._ack_head()
+
+    async def _extra(self, command: str) -> None:
+        """A command of the host's own (pause, restore, transaction), acknowledged at once."""
+        await self._drain()
+        self.stats.extra_commands.append(command)
+        fut = await self.port.send(command)
+        await fut
+
+    # -- pause / resume --------------------------------------------------------------------
+
+    async def _pause(self, move: bool = True) -> None:
+        await self._drain()
+        self.paused_modal = self.modal.copy()
+        self.state = "paused"
+        s = self.settings
+        if move:
+            for cmd in self.modal.pause_commands(s.retract, s.lift, s.z_max, s.retract_f,
+                                                 s.lift_f):
+                await self._extra(cmd)
+        self.hooks.paused(self, self.pause_reason)
+        self._resume.clear()
+        await self._resume.wait()
+        self._pause_req.clear()
+        if self._cancel.is_set():
+            return
+        if self._needs_restart:
+            for cmd in self.modal.restart_commands(self._safe_z(), s.travel_f, s.rotary_f,
+                                                   s.lift_f):
+                await self._extra(cmd)
+            self._needs_restart = False
+        elif move:
+            for cmd in self.modal.resume_commands(s.retract, s.retract_f, s.travel_f, s.lift_f):
+                await self._extra(cmd)
+        self.state = "streaming"
+        self.pause_reason = ""
+        self.hooks.resumed(self)
+
+    def _safe_z(self) -> float:
+        return min(self.settings.z_max, self.modal.position["Z"] + self.settings.safe_height)
+
+    async def _finish_cancel(self) -> str:
+        await self._drain()
+        self.state = "cancelling"
+        end = self.settings.end_gcode.format(safe_z=f"{self._safe_z():.3f}")
+        for raw in end.splitlines():
+            cmd = raw.split(";", 1)[0].strip()
+            if cmd:
+                await self._extra(cmd)
+        self.state = "done"
+        return "cancelled"
+
+    # -- transitions -------------------------------------------------------------------------
+
+    async def _transition(self, tr: Transition) -> bool:
+        """Run the block ``tr`` as a transaction; False (job to pause) on a mismatch."""
+        await self._extra("M400")
+        await self._check_temperature()
+        for index in range(tr.start, tr.end):
+            await self._feed(index)
+        await self._drain()
+        await self._extra("M400")
+        self.stats.extra_commands.append("M114")
+        measured = _position(await self.port.query("M114"))
+        try:
+            self._compare(tr, measured)
+        except TransitionFailed as exc:
+            self.stats.transition_failures += 1
+            self.pause_reason = f"transition to sub-part {tr.subpart} failed: {exc}"
+            self.hooks.event("transition_failed", {
+                "subpart": tr.subpart, "parent": tr.parent, "reason": str(exc),
+                "expected": exc.expected, "measured": exc.measured, "line": tr.end})
+            # the machine is not where the file believes: resume re-homes and goes to the
+            # block's target from a safe height before the sub-part's first layer
+            self._needs_restart = True
+            return False
+        self.stats.transitions += 1
+        self.hooks.checkpoint(self, tr, measured)
+        self.hooks.event("subpart_started", {
+            "subpart": tr.subpart, "parent": tr.parent, "a": measured.get("A"),
+            "c": measured.get("C"), "line": tr.end, "pose": measured})
+        return True
+
+    async def _check_temperature(self) -> None:
+        target = self.modal.hotend
+        if target <= 0:
+            return
+        self.stats.extra_commands.append("M105")
+        temps = _temperatures(await self.port.query("M105"))
+        actual = temps.get("T")
+        if actual is None or abs(actual - target) > self.settings.temperature_tolerance:
+            log.info("hotend at %s, target %s: waiting before the transition", actual, target)
+            await self._extra(f"M109 S{target:g}")
+
+    def _compare(self, tr: Transition, measured: dict[str, float]) -> None:
+        bad = []
+        for axis, want in tr.target.items():
+            got = measured.get(axis)
+            tol = (self.settings.angle_tolerance if axis in "AC"
+                   else self.settings.position_tolerance)
+            if got is None or not math.isfinite(got) or abs(got - want) > tol:
+                bad.append(f"{axis} {got} (expected {want:g})")
+        if bad:
+            raise TransitionFailed("position read back " + ", ".join(bad), tr.target, measured)
+
+    def status(self) -> dict[str, Any]:
+        return {"state": self.state, "acked": self.acked, "total": self.program.total,
+                "subpart": self.subpart, "layer": self.layer, "inflight": len(self._inflight),
+                "a": self.modal.position["A"], "c": self.modal.position["C"],
+                "transitions": self.stats.transitions,
+                "transition_failures": self.stats.transition_failures,
+                "pause_reason": self.pause_reason}
+
+
+def _done(fut: Awaitable[None]) -> bool:
+    return isinstance(fut, asyncio.Future) and fut.done()
+
+
+def _position(replies: tuple[Reply, ...]) -> dict[str, float]:
+    for r in reversed(replies):
+        if isinstance(r, Position):
+            return dict(r.axes)
+    raise PrinterError("M114 gave no position")
+
+
+def _temperatures(replies: tuple[Reply, ...]) -> dict[str, float]:
+    for r in reversed(replies):
+        temps = r.temperatures if isinstance(r, Ok) else r
+        if isinstance(temps, Temperatures):
+            out = {k: h.actual for k, h in temps.heaters.items()}
+            if "T" not in out and "T0" in out:
+                out["T"] = out["T0"]
+            return out
+    return {}

@@ -1,0 +1,211 @@
+from __future__ import annotations
+
+import asyncio
+
+import pytest
+
+from hostd.link.replies import HeaterReading, Position, Temperatures
+from hostd.printer.modal import ModalState
+from hostd.printer.program import parse_program
+from hostd.printer.streamer import Hooks, Streamer, StreamSettings
+
+GCODE = """\
+;HOSTD_ESTIMATE {"filament_mm": 10.0, "time_s": 20.0}
+G28
+M104 S200
+M109 S200
+G90
+M82
+;HOSTD_SUBPART {"index": 0, "parent": null}
+;HOSTD_LAYER {"subpart": 0, "index": 0}
+G1 X10 Y10 Z0.2 E1 F1200 ; first
+G1 X20 Y10 E2
+;HOSTD_LAYER {"subpart": 0, "index": 1}
+G1 X20 Y20 Z0.4 E3
+G1 X10 Y20 E4
+;HOSTD_TRANSITION {"from": 0, "to": 1, "a": 30, "c": 90, "x": 100, "y": 100, "z": 60}
+G0 Z60 F3000
+G0 A30 C90 F3000
+G0 X100 Y100 F6000
+;HOSTD_TRANSITION_END
+;HOSTD_SUBPART {"index": 1, "parent": 0}
+;HOSTD_LAYER {"subpart": 1, "index": 0}
+G1 X101 Y100 Z60.2 E5
+G1 X101 Y101 E6
+;HOSTD_LAYER {"subpart": 1, "index": 1}
+G1 X100 Y101 Z60.4 E7
+M104 S0
+"""
+
+
+class FakePort:
+    """A tiny firmware: executes in order, acks on the next loop turn, answers M114/M105."""
+
+    def __init__(self, lost_c_after: int | None = None) -> None:
+        self.log: list[str] = []
+        self.fw = ModalState()
+        self.lost_c_after = lost_c_after
+
+    async def send(self, command: str) -> asyncio.Future[None]:
+        self.log.append(command)
+        self.fw.apply(command)
+        if self.lost_c_after is not None and len(self.log) == self.lost_c_after:
+            self.fw.position["C"] += 1.5  # the C stepper lost steps
+        fut = asyncio.get_running_loop().create_future()
+        asyncio.get_running_loop().call_soon(fut.set_result, None)
+        return fut
+
+    async def query(self, command: str):
+        self.log.append(command)
+        if command == "M114":
+            return (Position({k: self.fw.position[k] for k in "XYZAC"}),)
+        return (Temperatures({"T": HeaterReading(self.fw.hotend, self.fw.hotend)}),)
+
+
+EXTRA = {"M400", "M114", "M105"}
+
+
+def file_commands(log: list[str], extras: list[str]) -> list[str]:
+    """The file's commands as executed: the log minus the host's own commands, matched as a
+    subsequence (the log must hold exactly ``len(extras)`` more lines than the file)."""
+    prog_cmds = parse_program(GCODE).commands
+    it, out = 0, []
+    for cmd in log:
+        if it < len(prog_cmds) and cmd == prog_cmds[it]:
+            out.append(cmd)
+            it += 1
+    assert len(log) == len(out) + len(extras)
+    return out
+
+
+@pytest.mark.asyncio
+async def test_program_markers():
+    prog = parse_program(GCODE)
+    assert prog.total == 16 and prog.estimate == {"filament_mm": 10.0, "time_s": 20.0}
+    assert [(m.subpart, m.layer) for m in prog.layers] == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    (tr,) = prog.transitions
+    assert (tr.start, tr.end, tr.subpart, tr.parent) == (9, 12, 1, 0)
+    assert tr.target == {"X": 100.0, "Y": 100.0, "Z": 60.0, "A": 30.0, "C": 90.0}
+    assert prog.resume_index(15, "layer") == 14 and prog.resume_index(15, "subpart") == 12
+    assert prog.commands[5] == "G1 X10 Y10 Z0.2 E1 F1200"
+
+
+@pytest.mark.asyncio
+async def test_stream_completes_every_line_once_in_order_with_transaction():
+    prog = parse_program(GCODE)
+    port = FakePort()
+    checkpoints, events, progress = [], [], []
+    hooks = Hooks(progress=lambda s: progress.append(s.acked),
+                  checkpoint=lambda s, tr, pose: checkpoints.append((tr.subpart, pose["A"],
+                                                                     pose["C"], tr.end)),
+                  event=lambda name, data: events.append(name))
+    st = Streamer(port, prog, StreamSettings(lookahead=4), hooks)
+    async with asyncio.timeout(5):
+        assert await st.run() == "completed"
+    assert file_commands(port.log, st.stats.extra_commands) == prog.commands
+    i = port.log.index("G0 Z60 F3000")
+    assert port.log[i - 3:i] == ["M400", "M105", "M109 S200"] or port.log[i - 2:i] == [
+        "M400", "M105"]
+    j = port.log.index("G0 X100 Y100 F6000")
+    assert port.log[j + 1:j + 3] == ["M400", "M114"]
+    assert checkpoints == [(1, 30.0, 90.0, 12)]
+    assert "subpart_started" in events and "job.subpart" in events
+    assert progress == sorted(progress) and progress[-1] == prog.total
+    assert st.stats.transitions == 1 and st.stats.transition_failures == 0
+
+
+@pytest.mark.asyncio
+async def test_pause_records_modal_state_and_resume_restores_it():
+    prog = parse_program(GCODE)
+    port = FakePort()
+    paused = asyncio.Event()
+    seen: dict = {}
+    st: Streamer
+
+    def on_progress(s: Streamer) -> None:
+        if s.acked == 7:
+            s.request_pause()
+
+    def on_paused(s: Streamer, reason: str) -> None:
+        seen["modal"] = s.paused_modal.snapshot()
+        seen["acked"] = s.acked
+        seen["log_len"] = len(port.log)
+        paused.set()
+
+    st = Streamer(port, prog, StreamSettings(lookahead=1, lift=5), Hooks(
+        progress=on_progress, paused=on_paused))
+    async with asyncio.timeout(5):
+        task = asyncio.create_task(st.run())
+        await paused.wait()
+        assert seen["modal"] == prog.modal_before(seen["acked"]).snapshot()
+        pause_cmds = port.log[seen["log_len"] - 6:seen["log_len"]]
+        assert pause_cmds == ["M400", "M83", "G1 E-1.0000 F2100", "G90", "G1 Z5.4000 F600",
+                              "M400"]
+        assert not any(c.startswith(("G0 A", "G1 A")) for c in pause_cmds)  # no rotation
+        st.request_resume()
+        assert await task == "completed"
+    after = port.log[seen["log_len"]:]
+    assert after[:3] == ["G90", "G1 X20.0000 Y20.0000 F7200", "G1 Z0.4000 F600"]
+    assert "G92 E3.00000" in after and "M82" in after and "G1 F1200" in after
+    assert file_commands(port.log, st.stats.extra_commands) == prog.commands
+
+
+@pytest.mark.asyncio
+async def test_cancel_runs_end_script():
+    prog = parse_program(GCODE)
+    port = FakePort()
+    st = Streamer(port, prog, StreamSettings(lookahead=2, safe_height=50), Hooks(
+        progress=lambda s: s.request_cancel() if s.acked == 6 else None))
+    async with asyncio.timeout(5):
+        assert await st.run() == "cancelled"
+    assert port.log[-6:] == ["M104 S0", "M140 S0", "M107", "G0 Z50.200 F3000",
+                             "G0 A0 C0 F3000", "M84"]
+    assert "G1 X10 Y20 E4" not in port.log
+
+
+@pytest.mark.asyncio
+async def test_lost_step_pauses_at_transition_and_resume_rehomes_and_rotates():
+    prog = parse_program(GCODE)
+    port = FakePort()
+    port.lost_c_after = None
+    paused = asyncio.Event()
+    events: list[tuple[str, dict]] = []
+    reasons: list[str] = []
+
+    def on_event(name: str, data: dict) -> None:
+        events.append((name, data))
+        if name == "job.subpart":
+            return
+
+    def on_paused(s: Streamer, reason: str) -> None:
+        reasons.append(reason)
+        paused.set()
+
+    # lose steps while the block rotates (the 2nd block command is the A/C move)
+    orig_send = port.send
+
+    async def send(command: str):
+        fut = await orig_send(command)
+        if command.startswith("G0 A30"):
+            port.fw.position["C"] += 1.5
+        return fut
+
+    port.send = send  # type: ignore[method-assign]
+    st = Streamer(port, prog, StreamSettings(lookahead=4), Hooks(paused=on_paused,
+                                                                 event=on_event))
+    async with asyncio.timeout(5):
+        task = asyncio.create_task(st.run())
+        await paused.wait()
+        assert "transition to sub-part 1 failed" in reasons[0] and "C 91.5" in reasons[0]
+        (failed,) = [d for n, d in events if n == "transition_failed"]
+        assert failed["measured"]["C"] == 91.5 and failed["expected"]["C"] == 90.0
+        n = len(port.log)
+        st.request_resume()
+        assert await task == "completed"
+    after = port.log[n:]
+    first_layer = prog.commands[12]
+    k = after.index(first_layer)
+    restart = after[:k]
+    assert restart[0] == "G28" and "M109 S200" in restart
+    assert restart.index("G0 Z120.0000 F600") < restart.index("G0 A30.0000 C90.0000 F3000")
+    assert st.stats.transition_failures == 1
