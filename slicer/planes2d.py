@@ -1,0 +1,182 @@
+"""Plane frames and planar cross-sections of solids.
+
+A layer lives in a plane through ``origin`` with unit ``normal``; its 2D coordinates are taken
+in an orthonormal frame ``(u, v, n)`` stored as the rows of a (3, 3) matrix. Frames of
+consecutive layers are parallel-transported (:func:`transport_frame`) so that 2D directions
+(infill angles) stay continuous when the normal turns.
+
+Cross-sections are cut with manifold3d: the solid is moved so the plane becomes z = 0 with
+``u, v`` on x, y, then ``Manifold.slice`` gives the polygons directly in the plane's frame.
+
+The tolerances of the whole slicing stage live here (:data:`TOL`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import manifold3d as m3
+import numpy as np
+import shapely
+import shapely.affinity
+import trimesh
+from numpy.typing import ArrayLike
+from shapely.geometry.base import BaseGeometry
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Every tolerance of the slicing stage, in one place (mm unless noted)."""
+
+    unit: float = 1e-12  # a vector shorter than this has no direction
+    min_area: float = 1e-4  # polygons smaller than this (mm²) are dropped
+    min_path: float = 1e-3  # paths shorter than this are dropped
+    contain: float = 1e-6  # containment slack of generated paths
+    straight_rel: float = 0.03  # skeleton deviation / length below which a part is straight
+    straight_abs: float = 0.5  # ... or below this absolute deviation
+    turn_margin: float = 0.9  # fraction of the thickness slack a turn may use
+
+
+TOL = Tolerances()
+
+
+def unit(v: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    """Row-normalise vectors.
+
+    Parameters
+    ----------
+    v : (n, 3) float
+
+    Returns
+    -------
+    unit : (n, 3) float
+        Unit vectors (zero rows stay zero).
+    valid : (n,) bool
+        Rows that had a direction.
+    """
+    a = np.asarray(v, dtype=float).reshape(-1, 3)
+    n = np.linalg.norm(a, axis=1)
+    ok = np.isfinite(n) & (n > TOL.unit)
+    out = np.zeros_like(a)
+    out[ok] = a[ok] / n[ok, None]
+    return out, ok
+
+
+def plane_frame(normal: ArrayLike, hint: ArrayLike | None = None) -> np.ndarray:
+    """An orthonormal frame whose third row is the unit ``normal``.
+
+    Parameters
+    ----------
+    normal : (3,) float
+    hint : (3,) float, optional
+        Preferred direction of the first axis (projected into the plane); +X, then +Y if
+        parallel to the normal.
+
+    Returns
+    -------
+    (3, 3) float
+        Rows ``u, v, n`` (right-handed).
+    """
+    n = unit(normal)[0][0]
+    for h in ([] if hint is None else [hint]) + [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]:
+        h = np.asarray(h, dtype=float)
+        u, ok = unit(h - (h @ n) * n)
+        if ok[0] and np.linalg.norm(h - (h @ n) * n) > 1e-6:
+            u = u[0]
+            return np.vstack([u, np.cross(n, u), n])
+    raise ValueError(f"normal {n.tolist()} has no frame")
+
+
+def transport_frame(frame: np.ndarray, normal: ArrayLike) -> np.ndarray:
+    """The frame of a new ``normal`` whose first axis stays as close to ``frame[0]`` as it can."""
+    return plane_frame(normal, hint=frame[0])
+
+
+def to_plane(points: ArrayLike, origin: ArrayLike, frame: np.ndarray) -> np.ndarray:
+    """Platform-frame points in plane coordinates.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    origin : (3,) float
+    frame : (3, 3) float
+
+    Returns
+    -------
+    (n, 3) float
+        ``(x, y, height above the plane)``.
+    """
+    return (np.asarray(points, dtype=float).reshape(-1, 3) - np.asarray(origin)) @ frame.T
+
+
+def from_plane(xy: ArrayLike, origin: ArrayLike, frame: np.ndarray) -> np.ndarray:
+    """Plane coordinates (n, 2) or (n, 3) back to platform-frame points (n, 3)."""
+    a = np.asarray(xy, dtype=float)
+    a = np.hstack([a, np.zeros((len(a), 1))]) if a.shape[1] == 2 else a
+    return a @ frame + np.asarray(origin, dtype=float)
+
+
+def to_manifold(mesh: trimesh.Trimesh) -> m3.Manifold:
+    """A watertight trimesh as a manifold3d solid (empty if it is not a valid manifold)."""
+    return m3.Manifold(m3.Mesh64(np.array(mesh.vertices, dtype=np.float64, order="C"),
+                                 np.array(mesh.faces, dtype=np.uint64, order="C")))
+
+
+def cross_section_polygons(cs: m3.CrossSection) -> BaseGeometry:
+    """A manifold3d CrossSection as a valid shapely (Multi)Polygon (possibly empty)."""
+    polys = []
+    for part in cs.decompose():
+        rings = [np.asarray(r, dtype=float) for r in part.to_polygons() if len(r) >= 3]
+        if not rings:
+            continue
+        areas = np.array([_signed_area(r) for r in rings])
+        k = int(np.argmax(areas))
+        polys.append(shapely.Polygon(rings[k], [r for i, r in enumerate(rings) if i != k]))
+    geom = shapely.make_valid(shapely.MultiPolygon(polys)) if polys else shapely.Polygon()
+    return _polygonal(geom)
+
+
+def _polygonal(geom: BaseGeometry) -> BaseGeometry:
+    """Only the polygonal parts of ``geom``, above :data:`TOL.min_area`."""
+    parts = shapely.get_parts(geom)
+    keep = [p for p in parts if p.geom_type == "Polygon" and p.area > TOL.min_area]
+    keep += [q for p in parts if p.geom_type in ("MultiPolygon", "GeometryCollection")
+             for q in shapely.get_parts(_polygonal(p))]
+    if not keep:
+        return shapely.Polygon()
+    return keep[0] if len(keep) == 1 else shapely.MultiPolygon(keep)
+
+
+def polygonal(geom: BaseGeometry) -> BaseGeometry:
+    """Public alias of the polygon filter used after boolean operations."""
+    return _polygonal(geom)
+
+
+def _signed_area(ring: np.ndarray) -> float:
+    x, y = ring[:, 0], ring[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def section(solid: m3.Manifold, origin: ArrayLike, frame: np.ndarray) -> BaseGeometry:
+    """The cross-section of ``solid`` by the plane (origin, frame[2]) in the plane's 2D frame.
+
+    Returns
+    -------
+    shapely Polygon or MultiPolygon
+        Possibly empty.
+    """
+    mat = np.hstack([frame, -(frame @ np.asarray(origin, dtype=float)).reshape(3, 1)])
+    return cross_section_polygons(solid.transform(mat).slice(0.0))
+
+
+def map_between(geom: BaseGeometry, src: tuple[np.ndarray, np.ndarray],
+                dst: tuple[np.ndarray, np.ndarray]) -> BaseGeometry:
+    """Project a 2D geometry of plane ``src = (origin, frame)`` into plane ``dst``'s 2D frame.
+
+    The projection is orthogonal onto ``dst`` (an affine map of the plane coordinates).
+    """
+    (o1, f1), (o2, f2) = src, dst
+    lin = f2[:2] @ f1[:2].T  # (2, 2): dst axes · src axes
+    off = f2[:2] @ (o1 - o2)
+    return shapely.affinity.affine_transform(
+        geom, [lin[0, 0], lin[0, 1], lin[1, 0], lin[1, 1], off[0], off[1]])
