@@ -1,0 +1,45 @@
+"""What the protocol state machine asks its shell to do."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from hostd.link.errors import LinkError
+from hostd.link.replies import Reply
+
+
+@dataclass(frozen=True)
+class Write:
+    """Put these bytes on the wire, now, after every earlier :class:`Write`."""
+
+    data: bytes
+
+
+@dataclass(frozen=True)
+class Acked:
+    """Every numbered line up to and including ``line`` has been acknowledged."""
+
+    line: int
+
+
+@dataclass(frozen=True)
+class Answer:
+    """The query sent as line ``line`` was acknowledged; ``replies`` arrived while it ran."""
+
+    line: int
+    replies: tuple[Reply, ...]
+
+
+@dataclass(frozen=True)
+class Connected:
+    """The ``M110 N0`` handshake succeeded; lines may be submitted."""
+
+
+@dataclass(frozen=True)
+class Failed:
+    """Every line not yet acknowledged is lost to ``error``; the job must stop."""
+
+    error: LinkError
+
+
+Action = Write | Acked | Answer | Connected | Failed

@@ -1,0 +1,73 @@
+"""Line framing of the Marlin serial protocol: ``N<n> <cmd>*<cs>`` with an XOR checksum.
+
+Everything here is pure: no I/O, no clock.
+"""
+
+from __future__ import annotations
+
+import re
+
+_COMMENT = re.compile(r"\([^)]*\)")
+
+
+def checksum(text: str) -> int:
+    """XOR of the bytes of ``text`` (ASCII), as Marlin computes it over ``N<n> <cmd>``.
+
+    Parameters
+    ----------
+    text
+        The framed line up to, not including, the ``*``.
+
+    Returns
+    -------
+    int
+        The checksum, 0..255.
+    """
+    cs = 0
+    for b in text.encode("ascii", "replace"):
+        cs ^= b
+    return cs
+
+
+def frame(number: int, command: str) -> str:
+    """Frame ``command`` as line ``number``: ``N<number> <command>*<checksum>`` (no newline)."""
+    body = f"N{number} {command}"
+    return f"{body}*{checksum(body)}"
+
+
+def encode(line: str) -> bytes:
+    """The bytes that go on the wire for one framed or raw line, newline included."""
+    return line.encode("ascii", "replace") + b"\n"
+
+
+def strip_gcode(line: str) -> str | None:
+    """A G-code line without comments and surrounding blanks, or ``None`` if nothing is left.
+
+    ``;`` comments and ``( ... )`` comments are removed, as are an existing ``N<n>`` prefix and
+    ``*<cs>`` suffix (the link numbers lines itself). The command letters are upper-cased.
+
+    Examples
+    --------
+    >>> strip_gcode("G1 X10 ; move")
+    'G1 X10'
+    >>> strip_gcode("   ; only a comment") is None
+    True
+    """
+    text = line.split(";", 1)[0]
+    text = _COMMENT.sub("", text)
+    if "*" in text:
+        text = text.split("*", 1)[0]
+    text = text.strip()
+    if text[:1] in ("N", "n"):
+        head, _, rest = text.partition(" ")
+        if head[1:].isdigit():
+            text = rest.strip()
+    if not text:
+        return None
+    return _upper_command(text)
+
+
+def _upper_command(text: str) -> str:
+    """Upper-case the command word (``g1`` → ``G1``) but keep string arguments (M117) intact."""
+    word, sep, rest = text.partition(" ")
+    return word.upper() + sep + rest

@@ -1,0 +1,315 @@
+"""The asyncio shell around :class:`~hostd.link.protocol.Protocol`: one port, one writer.
+
+All protocol decisions are made by the pure state machine; this module only moves bytes,
+passes the loop's clock in, arms one timer at the protocol's deadline, and turns
+acknowledgements and failures into futures. Everything runs on the event loop thread, and
+only :meth:`SerialLink._apply` writes to the port, so lines cannot be reordered.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections import deque
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
+from typing import Any
+
+from hostd.link import errors
+from hostd.link.actions import Acked, Action, Answer, Connected, Failed, Write
+from hostd.link.framing import strip_gcode
+from hostd.link.protocol import Protocol
+from hostd.link.replies import FirmwareInfo, Ok, Position, Reply, Temperatures
+from hostd.link.settings import LinkSettings
+from hostd.link.transport import Connection, open_port
+from hostd.sim.settings import SimSettings
+
+Opener = Callable[[LinkSettings, SimSettings | None], Awaitable[Connection]]
+_EXPECTED: dict[str, type] = {"M114": Position, "M105": Temperatures, "M115": FirmwareInfo}
+
+
+class SerialLink:
+    """The link to the printer's board. See :mod:`hostd.link` for the API overview.
+
+    Parameters
+    ----------
+    settings
+        Link settings (:func:`~hostd.link.settings.link_settings_from_config`).
+    emulator_settings
+        Settings of the emulator when ``settings.port`` is ``sim://``.
+    opener
+        Opens the port; tests replace it to simulate a port that comes and goes.
+    """
+
+    def __init__(self, settings: LinkSettings, emulator_settings: SimSettings | None = None,
+                 *, opener: Opener = open_port) -> None:
+        self.settings = settings
+        self.emulator_settings = emulator_settings
+        self.protocol = Protocol(settings)
+        self.connection: Connection | None = None
+        self._opener = opener
+        self._reader_task: asyncio.Task[None] | None = None
+        self._reconnect_task: asyncio.Task[None] | None = None
+        self._timer: asyncio.TimerHandle | None = None
+        self._lines: deque[tuple[int, asyncio.Future[int]]] = deque()
+        self._queries: dict[int, tuple[str, asyncio.Future[Reply]]] = {}
+        self._handshake: asyncio.Future[None] | None = None
+        self._connected = asyncio.Event()
+        self._closed = False
+        self._auto_reconnect = False
+        self.reconnects = 0
+        self.last_error: errors.LinkError | None = None
+        self.failures: list[errors.LinkError] = []
+
+    # -- connecting ---------------------------------------------------------------------
+
+    async def connect(self) -> None:
+        """Open the port and handshake (``M110 N0``, then ``M115``).
+
+        Raises
+        ------
+        LinkLost
+            The port cannot be opened or the firmware does not answer.
+        """
+        self._closed = False
+        self._auto_reconnect = False
+        try:
+            await self._open_and_handshake()
+        except OSError as exc:
+            raise errors.LinkLost(f"cannot open {self.settings.port}: {exc}") from exc
+        self._auto_reconnect = True
+        with contextlib.suppress(errors.LinkError, TimeoutError):
+            async with asyncio.timeout(self.settings.handshake_timeout):
+                await self.query("M115")
+
+    async def _open_and_handshake(self) -> None:
+        self._drop_connection()
+        self.connection = await self._opener(self.settings, self.emulator_settings)
+        self._reader_task = asyncio.get_running_loop().create_task(
+            self._read_loop(self.connection))
+        self._handshake = asyncio.get_running_loop().create_future()
+        self._apply(self.protocol.start(self._now()))
+        await self._handshake
+
+    async def close(self) -> None:
+        """Close the port and stop reconnecting; outstanding lines fail with LinkLost."""
+        self._closed = True
+        if self._reconnect_task is not None:
+            self._reconnect_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._reconnect_task
+        self._apply(self.protocol.disconnected("closed", self._now()))
+        task = self._reader_task
+        self._drop_connection()
+        if task is not None:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+
+    async def wait_connected(self) -> None:
+        """Wait until the link is connected (after a reset or a reconnect)."""
+        await self._connected.wait()
+
+    @property
+    def connected(self) -> bool:
+        """Whether lines may be submitted now."""
+        return self.protocol.state == "ready"
+
+    # -- sending ------------------------------------------------------------------------
+
+    def submit(self, command: str) -> asyncio.Future[int]:
+        """Queue one stripped command; the future gives its submission number once acked.
+
+        Never blocks. The future fails with a :class:`LinkError` if the line is lost to a
+        reset, halt, resend loop or lost link.
+        """
+        fut: asyncio.Future[int] = asyncio.get_running_loop().create_future()
+        seq, actions = self.protocol.submit(command, self._now())
+        self._lines.append((seq, fut))
+        self._apply(actions)
+        return fut
+
+    async def send(self, command: str) -> int:
+        """Send one command and wait for its ``ok``; returns its submission number."""
+        return await self.submit(command)
+
+    def enqueue(self, commands: Iterable[str]) -> list[asyncio.Future[int]]:
+        """:meth:`submit` each command, in order."""
+        return [self.submit(c) for c in commands]
+
+    async def stream(self, lines: Iterable[str], strip: bool = True) -> AsyncIterator[int]:
+        """Send ``lines`` in order and yield the input index of each line as it is acked.
+
+        Comments and blank lines are skipped when ``strip`` (their indices are never
+        yielded). At most ``settings.max_queued`` lines are submitted ahead of the acks.
+
+        Raises
+        ------
+        LinkError
+            A subclass telling why the job stopped; its ``job_line`` is the input index of
+            the last acknowledged line (``None`` if none).
+        """
+        ahead: deque[tuple[int, asyncio.Future[int]]] = deque()
+        last: int | None = None
+        try:
+            for index, raw in enumerate(lines):
+                command = strip_gcode(raw) if strip else raw.strip()
+                if not command:
+                    continue
+                ahead.append((index, self.submit(command)))
+                while len(ahead) >= self.settings.max_queued:
+                    last = await _first(ahead)
+                    yield last
+            while ahead:
+                last = await _first(ahead)
+                yield last
+        except errors.LinkError as err:
+            for _, fut in ahead:
+                fut.cancel()
+            raise type(err)(err.reason, err.last_acked, last) from err
+
+    async def query(self, command: str) -> Reply:
+        """Send ``command`` in line and return the reply it produced.
+
+        ``M114`` gives a :class:`Position`, ``M105`` a :class:`Temperatures`, ``M115`` a
+        :class:`FirmwareInfo`; other commands the last informational reply or the ``Ok``.
+        """
+        fut: asyncio.Future[Reply] = asyncio.get_running_loop().create_future()
+        seq, actions = self.protocol.submit(command, self._now(), kind="query")
+        self._queries[seq] = (command.split()[0].upper(), fut)
+        self._apply(actions)
+        return await fut
+
+    def emergency_stop(self) -> None:
+        """Write ``M112`` at once, ahead of the window and the queue; fail the job."""
+        self._apply(self.protocol.emergency_stop(self._now()))
+
+    def status(self) -> dict[str, Any]:
+        """A read-only, JSON-able snapshot of the link (see :mod:`hostd.link`)."""
+        snap = self.protocol.snapshot()
+        snap.update(port=self.settings.port, reconnects=self.reconnects,
+                    last_error=str(self.last_error) if self.last_error else None)
+        return snap
+
+    # -- the machinery ------------------------------------------------------------------
+
+    def _now(self) -> float:
+        return asyncio.get_running_loop().time()
+
+    async def _read_loop(self, conn: Connection) -> None:
+        reason = "end of stream"
+        try:
+            while True:
+                raw = await conn.reader.readline()
+                if not raw:
+                    break
+                self._apply(self.protocol.receive(raw.decode("ascii", "replace"), self._now()))
+        except OSError as exc:
+            reason = str(exc)
+        if conn is self.connection and not self._closed:
+            self._apply(self.protocol.disconnected(reason, self._now()))
+
+    def _apply(self, actions: list[Action]) -> None:
+        out = bytearray()
+        for action in actions:
+            if isinstance(action, Write):
+                out += action.data
+            else:
+                self._write(out)
+                out.clear()
+                self._event(action)
+        self._write(out)
+        self._arm_timer()
+
+    def _write(self, data: bytearray) -> None:
+        conn = self.connection
+        if data and conn is not None and not conn.writer.is_closing():
+            conn.writer.write(bytes(data))
+
+    def _event(self, action: Action) -> None:
+        if isinstance(action, Acked):
+            while self._lines and self._lines[0][0] <= action.line:
+                _, fut = self._lines.popleft()
+                if not fut.done():
+                    fut.set_result(_)
+        elif isinstance(action, Answer):
+            self._answer(action)
+        elif isinstance(action, Connected):
+            self._connected.set()
+            if self._handshake is not None and not self._handshake.done():
+                self._handshake.set_result(None)
+        elif isinstance(action, Failed):
+            self._failed(action.error)
+
+    def _answer(self, answer: Answer) -> None:
+        code, fut = self._queries.pop(answer.line, ("", None))
+        if fut is None or fut.done():
+            return
+        wanted = _EXPECTED.get(code)
+        found = [r for r in answer.replies if wanted is not None and isinstance(r, wanted)]
+        if wanted is Temperatures:
+            found += [r.temperatures for r in answer.replies
+                      if isinstance(r, Ok) and r.temperatures is not None]
+        informative = [r for r in answer.replies if not isinstance(r, Ok)]
+        fut.set_result(found[-1] if found else (informative or list(answer.replies))[-1])
+
+    def _failed(self, error: errors.LinkError) -> None:
+        self.last_error = error
+        self.failures.append(error)
+        self._connected.clear()
+        pending = [f for _, f in self._lines] + [f for _, f in self._queries.values()]
+        self._lines.clear()
+        self._queries.clear()
+        for fut in pending:
+            if not fut.done():
+                fut.set_exception(error)
+        if self._handshake is not None and not self._handshake.done():
+            self._handshake.set_exception(error)
+        if isinstance(error, errors.LinkLost) and self._auto_reconnect and not self._closed:
+            self._start_reconnect()
+
+    def _arm_timer(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        due = self.protocol.deadline()
+        if due is not None:
+            self._timer = asyncio.get_running_loop().call_at(due, self._on_timer)
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self._apply(self.protocol.tick(self._now()))
+
+    def _drop_connection(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self.connection is not None:
+            self.connection.close()
+            self.connection = None
+        if self._reader_task is not None:
+            self._reader_task.cancel()
+            self._reader_task = None
+
+    def _start_reconnect(self) -> None:
+        if self._reconnect_task is None or self._reconnect_task.done():
+            self._drop_connection()
+            self._reconnect_task = asyncio.get_running_loop().create_task(self._reconnect())
+
+    async def _reconnect(self) -> None:
+        """Reopen the port with exponential backoff until it works or :meth:`close`."""
+        delay = self.settings.reconnect_min
+        while not self._closed:
+            await asyncio.sleep(delay)
+            try:
+                await self._open_and_handshake()
+            except (OSError, errors.LinkError):
+                delay = min(delay * 2, self.settings.reconnect_max)
+                continue
+            self.reconnects += 1
+            return
+
+
+async def _first(ahead: deque[tuple[int, asyncio.Future[int]]]) -> int:
+    index, fut = ahead[0]
+    await fut
+    ahead.popleft()
+    return index

@@ -1,0 +1,67 @@
+"""Settings of the serial link, built from the ``serial.*`` configuration keys."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from hostd.config import Config
+
+
+@dataclass(frozen=True)
+class LinkSettings:
+    """Everything the link needs to know; defaults match ``config/hostd.yaml``.
+
+    Attributes
+    ----------
+    port
+        Device path, or ``sim://`` for the in-process emulator.
+    baud
+        Baud rate of a real port.
+    flow_control
+        ``window`` (buffer credit) or ``pingpong`` (one line in flight).
+    rx_buffer_bytes
+        Firmware receive buffer the window may fill, bytes.
+    ok_timeout
+        Seconds without progress before the M105 nudge; as long again before the link is lost.
+    resend_limit
+        Resend requests for one line before the job fails.
+    history_size
+        Acknowledged lines kept for resend requests.
+    handshake_timeout
+        Seconds to wait for the ``ok`` of ``M110 N0`` before retrying it.
+    handshake_attempts
+        ``M110 N0`` attempts before connecting fails.
+    reconnect_min, reconnect_max
+        First and largest delay between reconnect attempts, s (doubling).
+    max_queued
+        Lines :meth:`SerialLink.stream` submits ahead of the acknowledgements.
+    """
+
+    port: str = "sim://"
+    baud: int = 115200
+    flow_control: str = "window"
+    rx_buffer_bytes: int = 127
+    ok_timeout: float = 10.0
+    resend_limit: int = 10
+    history_size: int = 1024
+    handshake_timeout: float = 2.0
+    handshake_attempts: int = 5
+    reconnect_min: float = 0.5
+    reconnect_max: float = 30.0
+    max_queued: int = 64
+
+
+def link_settings_from_config(cfg: Config) -> LinkSettings:
+    """Build :class:`LinkSettings` from the ``serial.*`` keys of a validated configuration."""
+    s = cfg.section("serial")
+    return LinkSettings(
+        port=s["port"], baud=int(s["baud"]), flow_control=s["flow_control"],
+        rx_buffer_bytes=int(s["rx_buffer_bytes"]), ok_timeout=float(s["ok_timeout"]),
+        resend_limit=int(s["resend_limit"]), history_size=int(s["history_size"]),
+        handshake_timeout=float(s["handshake_timeout"]),
+        handshake_attempts=int(s["handshake_attempts"]),
+        reconnect_min=float(s["reconnect_min"]), reconnect_max=float(s["reconnect_max"]),
+        max_queued=int(s["max_queued"]),
+    )

@@ -1,0 +1,48 @@
+"""Counters and round-trip statistics of the link, kept by the protocol."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+
+@dataclass
+class LinkCounters:
+    """Monotonic counters since the link object was created."""
+
+    lines_sent: int = 0
+    lines_acked: int = 0
+    lines_resent: int = 0
+    resend_requests: int = 0
+    duplicate_resends: int = 0
+    checksum_errors: int = 0
+    line_errors: int = 0
+    timeouts: int = 0
+    resets: int = 0
+    waits: int = 0
+
+    def as_dict(self) -> dict[str, int]:
+        """Plain dictionary for the status snapshot."""
+        return asdict(self)
+
+
+@dataclass
+class RoundTrip:
+    """Time from sending a line to its ``ok``: last, mean and largest, in seconds."""
+
+    count: int = 0
+    last: float = 0.0
+    total: float = 0.0
+    largest: float = 0.0
+
+    def add(self, seconds: float) -> None:
+        """Record one round trip."""
+        self.count += 1
+        self.last = seconds
+        self.total += seconds
+        self.largest = max(self.largest, seconds)
+
+    def as_dict(self) -> dict[str, float | int]:
+        """Milliseconds, for the status snapshot."""
+        mean = self.total / self.count if self.count else 0.0
+        return {"count": self.count, "last_ms": round(self.last * 1e3, 3),
+                "mean_ms": round(mean * 1e3, 3), "max_ms": round(self.largest * 1e3, 3)}

@@ -1,0 +1,39 @@
+"""The send window: how many bytes may be unacknowledged, shrinking after errors (AIMD)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class SendWindow:
+    """Buffer-credit window of ``limit`` bytes, halved on each resend, regrown per clean ok.
+
+    In ``pingpong`` mode one line is in flight at a time. In ``window`` mode the bytes of the
+    unacknowledged lines stay within ``size`` (at most the firmware's receive buffer); a line
+    longer than the window is still sent when nothing else is in flight.
+    """
+
+    mode: str
+    limit: int
+    growth: int = 4
+    size: int = 0
+
+    def __post_init__(self) -> None:
+        self.size = self.limit
+
+    def fits(self, inflight_lines: int, inflight_bytes: int, length: int) -> bool:
+        """Whether a line of ``length`` bytes may go out now."""
+        if inflight_lines == 0:
+            return True
+        if self.mode == "pingpong":
+            return False
+        return inflight_bytes + length <= self.size
+
+    def shrink(self) -> None:
+        """Halve the window after an error (never below one line in flight)."""
+        self.size = max(0, self.size // 2)
+
+    def grow(self) -> None:
+        """Widen the window by ``growth`` bytes after a clean acknowledgement."""
+        self.size = min(self.limit, self.size + self.growth)

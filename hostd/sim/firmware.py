@@ -1,0 +1,299 @@
+"""A Marlin-like firmware front end on a simulated clock: receive buffer, line checking,
+command queue, ``ok``/``Resend`` replies, busy keepalive, autoreport and fault injection.
+
+Pure apart from the seeded random faults: bytes go in with :meth:`Firmware.receive`, time
+moves with :meth:`Firmware.advance` / :meth:`Firmware.settle`, replies come out of
+:meth:`Firmware.take_output`. Every executed command is appended to :attr:`Firmware.log`.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import deque
+
+from hostd.sim.faults import Faults
+from hostd.sim.machine import FIRMWARE_NAME, Command, Machine
+from hostd.sim.settings import SimSettings
+
+_M112 = re.compile(rb"(?:^|[\s\d])M112(?:[\s*]|$)")
+HALT_MESSAGE = "Error:Printer halted. kill() called!"
+
+
+def xor_checksum(data: bytes) -> int:
+    """Marlin's checksum: the XOR of the bytes before ``*``."""
+    cs = 0
+    for b in data:
+        cs ^= b
+    return cs
+
+
+class Firmware:
+    """The emulated board. See the module docstring for the driving protocol.
+
+    Attributes
+    ----------
+    log
+        ``(line number or None, command)`` of every executed command, in order.
+    dropped_bytes
+        Bytes lost because the receive buffer was full.
+    rx_high_water
+        Most bytes ever held in the receive buffer.
+    """
+
+    def __init__(self, settings: SimSettings) -> None:
+        self.settings = settings
+        self.faults = Faults(settings)
+        self.now = 0.0
+        self.log: list[tuple[int | None, str]] = []
+        self.dropped_bytes = 0
+        self.rx_high_water = 0
+        self.boots = 0
+        self._reset_done = False
+        self._silence_done = False
+        self._out: list[str] = []
+        self.boot()
+
+    # -- lifecycle ----------------------------------------------------------------------
+
+    def boot(self) -> None:
+        """(Re)start: forget buffers, queue, planner and line number; print the banner."""
+        self.boots += 1
+        self.machine = Machine(self.settings)
+        self.rx = bytearray()
+        self._isr_line = bytearray()
+        self.queue: deque[Command] = deque()
+        self.last_n = 0
+        self.executed = 0
+        self.halted = False
+        self.silence_left = 0
+        self.busy_until = 0.0
+        self._busy_report_at: float | None = None
+        self._autoreport_at: float | None = None
+        self._out += ["start", f"echo:{FIRMWARE_NAME}", "echo: Free Memory: 4096"]
+
+    def take_output(self) -> bytes:
+        """Reply bytes produced since the last call."""
+        if not self._out:
+            return b""
+        data = "".join(f"{line}\n" for line in self._out).encode("ascii", "replace")
+        self._out = []
+        return data
+
+    # -- input --------------------------------------------------------------------------
+
+    def receive(self, data: bytes) -> None:
+        """Bytes arriving now; what does not fit into the receive buffer is lost."""
+        if self.halted:
+            return
+        start = 0
+        while start < len(data):
+            end = data.find(b"\n", start)
+            end = len(data) if end < 0 else end + 1
+            self._arrive(data[start:end])
+            start = end
+            self.service()
+
+    def _arrive(self, chunk: bytes) -> None:
+        self._emergency_parser(chunk)
+        if self.halted:
+            return
+        room = self.settings.rx_buffer_bytes - len(self.rx)
+        if len(chunk) > room:
+            self.dropped_bytes += len(chunk) - max(room, 0)
+            chunk = chunk[:max(room, 0)]
+        self.rx += chunk
+        self.rx_high_water = max(self.rx_high_water, len(self.rx))
+
+    def _emergency_parser(self, chunk: bytes) -> None:
+        self._isr_line += chunk
+        if not self._isr_line.endswith(b"\n"):
+            return
+        line, self._isr_line = bytes(self._isr_line), bytearray()
+        if _M112.search(line.strip()):
+            self._halt()
+
+    def _halt(self) -> None:
+        self.halted = True
+        self.queue.clear()
+        self.rx.clear()
+        self.log.append((None, "M112"))
+        self._out.append(HALT_MESSAGE)
+
+    # -- time ---------------------------------------------------------------------------
+
+    def advance(self, until: float) -> None:
+        """Let simulated time run to ``until``, handling every event on the way."""
+        while True:
+            event = self.next_event()
+            if event is None or event > until:
+                break
+            self.now = max(self.now, event)
+            self._timers()
+            self.service()
+        self.now = max(self.now, until)
+        self._timers()
+        self.service()
+
+    def settle(self, limit: int = 100_000) -> None:
+        """Fast mode: jump simulated time until the command queue is empty (or stuck)."""
+        for _ in range(limit):
+            if not self.queue or self.halted:
+                return
+            event = self.next_event()
+            if event is None:
+                return
+            self.advance(event)
+
+    def next_event(self) -> float | None:
+        """Simulated time of the next internal event, if any."""
+        times = [t for t in (self._busy_report_at, self._autoreport_at) if t is not None]
+        head = self._head_ready()
+        if head is not None:
+            times.append(head)
+        return min(times) if times else None
+
+    def _head_ready(self) -> float | None:
+        if self.halted or not self.queue:
+            return None
+        if self.now < self.busy_until:
+            return self.busy_until
+        head = self.queue[0]
+        return self.machine.ready_at(head, self.now) if head.started else self.now
+
+    def _timers(self) -> None:
+        if self._busy_report_at is not None and self.now >= self._busy_report_at:
+            self._out.append("echo:busy: processing")
+            self._busy_report_at += self.settings.busy_interval
+        interval = self.machine.autoreport
+        if interval <= 0:
+            self._autoreport_at = None
+        elif self._autoreport_at is None:
+            self._autoreport_at = self.now + interval
+        elif self.now >= self._autoreport_at:
+            self._out.append(" " + self.machine.temperature_report(self.now))
+            self._autoreport_at = self.now + interval
+
+    # -- the main loop ------------------------------------------------------------------
+
+    def service(self) -> None:
+        """Move complete lines into the queue and run commands, at the current time."""
+        while not self.halted:
+            while len(self.queue) < self.settings.queue_slots and b"\n" in self.rx:
+                end = self.rx.index(b"\n")
+                line = bytes(self.rx[:end])
+                del self.rx[:end + 1]
+                self._accept(line)
+            if not self._run_head():
+                return
+
+    def _accept(self, raw: bytes) -> None:
+        if self.silence_left > 0:
+            self.silence_left -= 1
+            return
+        line = self.faults.corrupt(raw.rstrip(b"\r")).strip()
+        if not line:
+            return
+        if line[:1] != b"N":
+            if b"*" in line:
+                self._reject("No Line Number with checksum")
+            else:
+                self._enqueue(None, line)
+            return
+        self._numbered(line)
+
+    def _numbered(self, line: bytes) -> None:
+        head, _, rest = line.partition(b" ")
+        try:
+            number = int(head[1:])
+        except ValueError:
+            self._reject("Line Number is not Last Line Number+1")
+            return
+        body, star, cs = rest.partition(b"*")
+        is_m110 = body.strip().upper().startswith(b"M110")
+        if number != self.last_n + 1 and not is_m110:
+            self._reject("Line Number is not Last Line Number+1")
+            return
+        if not star:
+            self._reject("No Checksum with line number")
+            return
+        if not cs.strip().isdigit() or int(cs) != xor_checksum(line.partition(b"*")[0]):
+            self._reject("checksum mismatch")
+            return
+        self.last_n = number
+        if is_m110:
+            words = Command(number, body.decode("latin-1").strip()).words
+            self.last_n = int(words.get("N", number))
+        self._enqueue(number, body)
+
+    def _enqueue(self, number: int | None, body: bytes) -> None:
+        text = body.decode("latin-1").strip()
+        if text:
+            self.queue.append(Command(number, text))
+
+    def _reject(self, message: str) -> None:
+        self._out.append(f"Error:{message}, Last Line: {self.last_n}")
+        self._out.append(f"Resend: {self.last_n + 1}")
+        self._ok(None)
+
+    def _ok(self, text: str | None) -> None:
+        if self.faults.lose_ok():
+            return
+        if text is None and self.settings.advanced_ok:
+            head = self.queue[0].number if self.queue else None
+            text = self._advanced_ok(head)
+        self._out.append(text or "ok")
+
+    def _advanced_ok(self, number: int | None) -> str:
+        planner = self.machine.planner.free(self.now) - 1
+        slots = self.settings.queue_slots - len(self.queue)
+        n = f" N{number}" if number is not None else ""
+        return f"ok{n} P{max(planner, 0)} B{slots}"
+
+    def _run_head(self) -> bool:
+        if not self.queue or self.now < self.busy_until:
+            self._arm_busy_report()
+            return False
+        cmd = self.queue[0]
+        if not cmd.started:
+            cmd.started = True
+            self.machine.start(cmd, self.now)
+            if cmd.code == "M112":
+                self._halt()
+                return False
+        if self.machine.ready_at(cmd, self.now) > self.now:
+            self._arm_busy_report()
+            return False
+        self._complete(cmd)
+        return True
+
+    def _arm_busy_report(self) -> None:
+        blocked = bool(self.queue)
+        if not blocked:
+            self._busy_report_at = None
+        elif self._busy_report_at is None:
+            self._busy_report_at = self.now + self.settings.busy_interval
+
+    def _complete(self, cmd: Command) -> None:
+        lines, ok_text = self.machine.finish(cmd, self.now)
+        self.queue.popleft()
+        self._busy_report_at = None
+        self.log.append((cmd.number, cmd.text))
+        self._out.extend(lines)
+        if self.settings.advanced_ok and ok_text is None:
+            self._ok(self._advanced_ok(cmd.number))
+        else:
+            self._ok(ok_text)
+        self.busy_until = self.now + self.faults.busy_for()
+        if cmd.number is not None and cmd.number > 0:
+            self.executed += 1
+            self._scheduled_faults()
+
+    def _scheduled_faults(self) -> None:
+        s = self.settings
+        if s.reset_at_line and not self._reset_done and self.executed >= s.reset_at_line:
+            self._reset_done = True
+            self.boot()
+        elif (s.silence_at_line and not self._silence_done
+              and self.executed >= s.silence_at_line):
+            self._silence_done = True
+            self.silence_left = s.silence_lines

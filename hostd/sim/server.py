@@ -1,0 +1,185 @@
+"""The asyncio shell of the emulator: wall clock, wire throttling and scheduling.
+
+:class:`Emulator` drives a :class:`~hostd.sim.firmware.Firmware` from bytes fed to it and
+writes the replies through a ``write`` callable, so it can sit behind a socket pair (the
+in-process ``sim://`` port) or a pseudo-terminal (``hostd-sim --pty``). Nothing polls: wire
+delays and simulated-time events are single ``call_at`` timers.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections import deque
+from collections.abc import Callable
+
+from hostd.sim.firmware import Firmware
+from hostd.sim.settings import SimSettings
+
+
+class Emulator:
+    """One emulated board attached to a byte sink.
+
+    Parameters
+    ----------
+    settings
+        Emulator settings.
+    write
+        Called with reply bytes, in order.
+    """
+
+    def __init__(self, settings: SimSettings, write: Callable[[bytes], None]) -> None:
+        self.settings = settings
+        self.firmware = Firmware(settings)
+        self._write = write
+        self._loop = asyncio.get_running_loop()
+        self._t0 = self._loop.time()
+        self._rate = settings.wire_bytes_per_second
+        self._inbox: deque[tuple[float, bytes]] = deque()
+        self._in_free = 0.0
+        self._out_free = 0.0
+        self._in_timer: asyncio.TimerHandle | None = None
+        self._wake_timer: asyncio.TimerHandle | None = None
+        self.closed = False
+        self._flush()
+
+    # -- input --------------------------------------------------------------------------
+
+    def feed(self, data: bytes) -> None:
+        """Bytes the host wrote; they reach the firmware at the wire rate."""
+        if self.closed or not data:
+            return
+        if self._rate == float("inf"):
+            self._deliver(data)
+            return
+        now = self._loop.time()
+        start = 0
+        while start < len(data):
+            end = data.find(b"\n", start)
+            end = len(data) if end < 0 else end + 1
+            self._in_free = max(self._in_free, now) + (end - start) / self._rate
+            self._inbox.append((self._in_free, data[start:end]))
+            start = end
+        if self._in_timer is None:
+            self._in_timer = self._loop.call_at(self._inbox[0][0], self._drain_inbox)
+
+    def _drain_inbox(self) -> None:
+        self._in_timer = None
+        now = self._loop.time()
+        due = bytearray()
+        while self._inbox and self._inbox[0][0] <= now:
+            due += self._inbox.popleft()[1]
+        if due:
+            self._deliver(bytes(due))
+        if self._inbox and not self.closed:
+            self._in_timer = self._loop.call_at(self._inbox[0][0], self._drain_inbox)
+
+    def _deliver(self, data: bytes) -> None:
+        fw = self.firmware
+        if self.settings.realtime:
+            fw.advance(self._sim_now())
+        fw.receive(data)
+        self._run()
+
+    # -- time ---------------------------------------------------------------------------
+
+    def _sim_now(self) -> float:
+        return (self._loop.time() - self._t0) * self.settings.time_scale
+
+    def _run(self) -> None:
+        fw = self.firmware
+        if not self.settings.realtime:
+            fw.settle()
+        self._flush()
+        self._schedule()
+
+    def _schedule(self) -> None:
+        if self._wake_timer is not None:
+            self._wake_timer.cancel()
+            self._wake_timer = None
+        event = self.firmware.next_event()
+        if event is None or self.closed or not self.settings.realtime:
+            return
+        when = self._t0 + event / self.settings.time_scale
+        self._wake_timer = self._loop.call_at(when, self._wake)
+
+    def _wake(self) -> None:
+        self._wake_timer = None
+        self.firmware.advance(self._sim_now())
+        self._run()
+
+    # -- output -------------------------------------------------------------------------
+
+    def _flush(self) -> None:
+        data = self.firmware.take_output()
+        if not data or self.closed:
+            return
+        if self._rate == float("inf"):
+            self._write(data)
+            return
+        self._out_free = max(self._out_free, self._loop.time()) + len(data) / self._rate
+        self._loop.call_at(self._out_free, self._send_late, data)
+
+    def _send_late(self, data: bytes) -> None:
+        if not self.closed:
+            self._write(data)
+
+    def close(self) -> None:
+        """Stop all timers; later input is ignored."""
+        self.closed = True
+        for timer in (self._in_timer, self._wake_timer):
+            if timer is not None:
+                timer.cancel()
+
+
+class _SocketSide(asyncio.Protocol):
+    """Adapter: the emulator on one end of a stream socket."""
+
+    def __init__(self, settings: SimSettings) -> None:
+        self.settings = settings
+        self.emulator: Emulator | None = None
+        self.transport: asyncio.Transport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        self.emulator = Emulator(self.settings, transport.write)
+
+    def data_received(self, data: bytes) -> None:
+        if self.emulator is not None:
+            self.emulator.feed(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self.emulator is not None:
+            self.emulator.close()
+
+
+class SocketEmulator:
+    """An emulator serving one connected socket (the board end of ``sim://``)."""
+
+    def __init__(self, side: _SocketSide) -> None:
+        self._side = side
+
+    @classmethod
+    async def serve(cls, settings: SimSettings, sock: object) -> SocketEmulator:
+        """Attach a fresh emulator to ``sock`` (a connected stream socket)."""
+        loop = asyncio.get_running_loop()
+        side = _SocketSide(settings)
+        await loop.create_connection(lambda: side, sock=sock)  # type: ignore[arg-type]
+        return cls(side)
+
+    @property
+    def emulator(self) -> Emulator:
+        """The running emulator."""
+        assert self._side.emulator is not None
+        return self._side.emulator
+
+    @property
+    def firmware(self) -> Firmware:
+        """The emulated board, for inspection in tests."""
+        return self.emulator.firmware
+
+    def unplug(self) -> None:
+        """Drop the connection, as a pulled USB cable does."""
+        self.emulator.close()
+        if self._side.transport is not None:
+            self._side.transport.close()
