@@ -1,0 +1,228 @@
+"""Dynamic slicing: curved-layer planes along a skeleton curve with a wedge-thickness bound.
+
+Paper §2.2.4 (2)–(3) slices at s = i·t with the plane normal to the tangent τ(s). Consecutive
+planes are then not parallel and the layers are wedges whose thickness the paper does not
+control: across a section of radius ρ a turn of Δθ changes the thickness by about ρ·tan Δθ.
+Here the planes are *marched*:
+
+* layer i's plane passes through the curve point whose height above plane i−1 (along its
+  normal) is exactly t, so the thickness on the skeleton is always t;
+* its normal turns from n_{i−1} towards τ(s_i) by at most
+  Δθ_max = atan(m·min(1 − f_min, f_max − 1)·t / ρ), ρ the extent of the previous section
+  around its origin, m = :data:`TOL.turn_margin`; the exact local thickness over the new
+  section is then measured and the turn halved until it lies in [f_min·t, f_max·t];
+* a caller's ``accept`` hook (reachable A, no collision) may reject a plane: the turn is
+  halved down to zero (the previous normal) before :class:`SlicingError` is raised;
+* the first layer is parallel to the base plane (a child starts flat on its parent).
+
+Regions are cut at the middle of each layer (plane parallel to layer i, t/2 below it) so no
+plane hits a face of the model exactly; paths later lie on layer i's plane (its top).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import manifold3d as m3
+import numpy as np
+import shapely
+from numpy.typing import ArrayLike
+from shapely.geometry.base import BaseGeometry
+
+from slicer.planes2d import TOL, from_plane, plane_frame, section, transport_frame, unit
+from slicer.skeleton import SkeletonCurve
+
+MAX_HALVINGS = 8  # turn halvings before giving up on a turn (then the previous normal)
+NEWTON_STEPS = 4  # iterations finding the curve point t above the previous plane
+
+#: ``accept(origin (3,), frame (3, 3), region) -> None`` if the plane is usable, else the name
+#: of what is in the way (e.g. "printed part", "platform", "A limits").
+Accept = Callable[[np.ndarray, np.ndarray, BaseGeometry], "str | None"]
+
+
+class SlicingError(ValueError):
+    """A sub-part that cannot be sliced; the message names sub-part, layer and obstacle."""
+
+
+@dataclass
+class LayerPlane:
+    """One marched layer.
+
+    Attributes
+    ----------
+    index : int
+    s : float
+        Arc length of the origin on the skeleton curve, mm.
+    origin : (3,) float
+        Point of the layer plane (its top surface) on the skeleton.
+    frame : (3, 3) float
+        Rows u, v, normal.
+    region : shapely Polygon or MultiPolygon
+        Mid-layer cross-section in the frame's 2D coordinates.
+    below : tuple of ((3,) float, (3,) float)
+        Origin and normal of the surface the layer is printed on (previous plane or base).
+    thickness : (2,) float
+        Smallest and largest local thickness over the region, mm.
+    turn : float
+        Angle between this normal and the one below, degrees.
+    """
+
+    index: int
+    s: float
+    origin: np.ndarray
+    frame: np.ndarray
+    region: BaseGeometry
+    below: tuple[np.ndarray, np.ndarray]
+    thickness: tuple[float, float]
+    turn: float
+
+    @property
+    def normal(self) -> np.ndarray:
+        """Unit normal (build direction), (3,) float."""
+        return self.frame[2]
+
+
+def local_thickness(points: ArrayLike, normal: ArrayLike, below: tuple[np.ndarray, np.ndarray]
+                    ) -> np.ndarray:
+    """Thickness under points of a layer plane, measured along its normal to the plane below.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Points on the layer plane.
+    normal : (3,) float
+        Unit normal of the layer.
+    below : ((3,) float, (3,) float)
+        Origin and unit normal of the plane below.
+
+    Returns
+    -------
+    (n,) float
+        ``((x − o_b)·n_b) / (n·n_b)``; +inf where the planes are perpendicular.
+    """
+    ob, nb = below
+    den = float(np.dot(normal, nb))
+    h = (np.asarray(points, dtype=float).reshape(-1, 3) - ob) @ nb
+    return h / den if abs(den) > TOL.unit else np.full(len(h), np.inf)
+
+
+def turn_toward(a: np.ndarray, b: np.ndarray, max_deg: float) -> tuple[np.ndarray, float]:
+    """Rotate unit ``a`` towards unit ``b`` by at most ``max_deg``; returns (vector, angle°)."""
+    ang = float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
+    if ang <= max_deg or ang < 1e-12:
+        return (b.copy() if ang <= max_deg else a.copy()), min(ang, max_deg)
+    axis, ok = unit(np.cross(a, b))
+    if not ok[0]:  # antiparallel: any perpendicular axis
+        axis = unit(np.cross(a, plane_frame(a)[0]))[0]
+    k, th = axis[0], np.radians(max_deg)
+    r = a * np.cos(th) + np.cross(k, a) * np.sin(th) + k * (k @ a) * (1 - np.cos(th))
+    return unit(r)[0][0], max_deg
+
+
+def region_radius(region: BaseGeometry) -> float:
+    """Largest distance of the region's vertices from the frame origin, mm (0 if empty)."""
+    xy = shapely.get_coordinates(region)
+    return float(np.linalg.norm(xy, axis=1).max()) if len(xy) else 0.0
+
+
+def _advance(curve: SkeletonCurve, s0: float, below: tuple[np.ndarray, np.ndarray],
+             t: float) -> float:
+    """Arc length whose curve point lies t above the plane ``below`` (Newton, clamped)."""
+    ob, nb = below
+    s = s0 + t
+    for _ in range(NEWTON_STEPS):
+        h = float((curve.point(s)[0] - ob) @ nb)
+        slope = max(float(curve.tangent(s)[0] @ nb), 0.2)
+        s = float(np.clip(s + (t - h) / slope, s0 + 0.5 * t, s0 + 5.0 * t))
+    return s
+
+
+@dataclass(frozen=True)
+class MarchSettings:
+    """What plane marching needs from :class:`slicer.settings.ProcessSettings`."""
+
+    t: float
+    f_min: float
+    f_max: float
+    max_layers: int = 100000
+
+
+def _try_plane(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray,
+               below: tuple[np.ndarray, np.ndarray], ms: MarchSettings
+               ) -> tuple[BaseGeometry, tuple[float, float]]:
+    """Mid-layer region and its thickness range for one candidate plane."""
+    region = section(solid, origin - 0.5 * ms.t * frame[2], frame)
+    xy = shapely.get_coordinates(region)
+    if len(xy) == 0:
+        return region, (ms.t, ms.t)
+    h = local_thickness(from_plane(xy, origin, frame), frame[2], below)
+    return region, (float(h.min()), float(h.max()))
+
+
+def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLike,
+                 base_normal: ArrayLike, ms: MarchSettings, accept: Accept | None = None,
+                 subpart: int = 0) -> list[LayerPlane]:
+    """March layer planes along ``curve`` from the base plane until the sections run out.
+
+    Parameters
+    ----------
+    solid : manifold3d.Manifold
+        The sub-part.
+    curve : SkeletonCurve
+        Its skeleton from the base centre.
+    base_origin, base_normal : (3,) float
+        The base plane (normal into the part); the first layer is parallel to it.
+    ms : MarchSettings
+    accept : Accept, optional
+        Veto hook per candidate plane (orientation limits, collisions).
+    subpart : int
+        Index used in error messages.
+
+    Raises
+    ------
+    SlicingError
+        When even an unturned plane is vetoed by ``accept``.
+    """
+    below = (np.asarray(base_origin, dtype=float), unit(base_normal)[0][0])
+    frame = plane_frame(below[1])
+    s_prev, radius, layers = 0.0, 0.0, []
+    slack = TOL.turn_margin * min(1.0 - ms.f_min, ms.f_max - 1.0) * ms.t
+    for i in range(ms.max_layers):
+        s = _advance(curve, s_prev, below, ms.t)
+        origin = curve.point(s)[0]
+        origin = origin + (ms.t - (origin - below[0]) @ below[1]) * below[1] * (i == 0)
+        target = curve.tangent(s)[0] if i else below[1]
+        max_turn = float(np.degrees(np.arctan2(slack, radius))) if radius > 0 else 0.0
+        layer = _choose(solid, origin, frame, below, target, max_turn, ms, accept, subpart, i)
+        if layer is None:
+            break
+        layer.s = s
+        layers.append(layer)
+        below, frame, s_prev = (origin, layer.frame[2]), layer.frame, s
+        radius = region_radius(layer.region) + 2.0 * ms.t
+    return layers
+
+
+def _choose(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray,
+            below: tuple[np.ndarray, np.ndarray], target: np.ndarray, max_turn: float,
+            ms: MarchSettings, accept: Accept | None, subpart: int, index: int
+            ) -> LayerPlane | None:
+    """The most-turned acceptable plane at ``origin`` (None once the part has ended)."""
+    turn = max_turn if index else 0.0
+    reason = None
+    for k in range(MAX_HALVINGS + 2):
+        n, ang = turn_toward(below[1], target, turn)
+        f = transport_frame(frame, n)
+        region, (lo, hi) = _try_plane(solid, origin, f, below, ms)
+        if region.is_empty:
+            return None
+        ok_thick = ms.f_min * ms.t - 1e-9 <= lo and hi <= ms.f_max * ms.t + 1e-9
+        reason = None if not ok_thick or accept is None else accept(origin, f, region)
+        if ok_thick and reason is None:
+            return LayerPlane(index, 0.0, origin, f, region, below, (lo, hi), ang)
+        turn = 0.0 if k >= MAX_HALVINGS else 0.5 * turn
+        if ang == 0.0:
+            break
+    what = reason or "the layer-thickness bound"
+    raise SlicingError(f"sub-part {subpart}, layer {index}: no plane clears {what}")
