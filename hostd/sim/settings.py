@@ -81,6 +81,7 @@ def sim_settings_from_config(cfg: Config) -> SimSettings:
     s = cfg.section("sim")
     return SimSettings(
         baud=int(cfg["serial.baud"]), rx_buffer_bytes=int(s["rx_buffer_bytes"]),
+        queue_slots=int(s["queue_slots"]), planner_blocks=int(s["planner_blocks"]),
         realtime=bool(s["realtime"]), time_scale=float(s["time_scale"]),
         throttle=bool(s["throttle"]), advanced_ok=bool(s["advanced_ok"]),
         bit_flip_prob=float(s["bit_flip_prob"]), lost_ok_prob=float(s["lost_ok_prob"]),
