@@ -283,6 +283,13 @@ def perturb(plane: Plane, rng: np.random.Generator, settings: SearchSettings,
     return Plane(point, normal / np.linalg.norm(normal))
 
 
+def _pushed_on(best: Check, cand: Check) -> bool:
+    """Keep walking an invalid plane only while the child is tangled with parent material
+    and the step moved the plane into the child (away from the parent)."""
+    step = (cand.plane.point - best.plane.point) @ best.plane.normal
+    return not best.valid and best.tangled and cand.tangled and step > 0
+
+
 def search_plane(ctx: PieceContext, start: Plane, settings: SearchSettings,
                  rng: np.random.Generator) -> tuple[Check, int]:
     """Local dynamic search from ``start`` until constraints I and II hold.
@@ -300,7 +307,7 @@ def search_plane(ctx: PieceContext, start: Plane, settings: SearchSettings,
     area0 = best.area if best.valid else np.inf
     for it in range(1, settings.max_iterations + 1):
         cand = evaluate(ctx, perturb(best.plane, rng, settings, best))
-        if best.valid and not cand.valid:
+        if not cand.valid and not _pushed_on(best, cand):
             continue
         if best.valid and cand.area > (1.0 + settings.area_growth_max) * area0:
             continue
@@ -311,3 +318,45 @@ def search_plane(ctx: PieceContext, start: Plane, settings: SearchSettings,
             if best.ok:
                 return best, it
     return best, settings.max_iterations
+
+
+def verify_base(child: trimesh.Trimesh, plane: Plane, obstacles: np.ndarray, head: Printhead,
+                a_limits: tuple[float, float]) -> str | None:
+    """Re-check I and II on a finished sub-part; the problem as a phrase, or None.
+
+    Parameters
+    ----------
+    child : trimesh.Trimesh
+        The sub-part.
+    plane : Plane
+        Its base plane.
+    obstacles : (k, 3) float
+        Surface samples of everything printed before it.
+    """
+    if not reachable_mask(plane.normal[None], a_limits)[0]:
+        return "constraint II fails: the build direction is outside the A limits"
+    h = plane.signed(child.vertices)
+    if h.min() < -1e-4 * max(1.0, child.scale):
+        return "constraint II fails: the sub-part reaches below its base plane"
+    lifted = Plane(plane.point + 1e-4 * plane.normal, plane.normal)
+    section = base_section(child, lifted, np.ones(len(child.faces), dtype=bool))
+    if section is None or section.area <= 0:
+        return "constraint II fails: empty base cross-section"
+    if not _platform_clear(head, plane, section):
+        return "constraint I fails: the printhead would reach below the platform"
+    hits = _head_hits(obstacles, plane, section, head)
+    if hits:
+        return f"constraint I fails: {hits} samples of the printed part lie inside the printhead"
+    return None
+
+
+def _head_hits(pts: np.ndarray, plane: Plane, section: shapely.Geometry,
+               head: Printhead) -> int:
+    """Points inside the head for some tip on ``section`` (margin: the sample spacing)."""
+    h = plane.signed(pts)
+    up = (h > EPS) & (h <= head.height)
+    if not up.any():
+        return 0
+    flat = (pts[up] - plane.point) @ plane_basis(plane.normal).T
+    dist = shapely.distance(shapely.points(flat), section)
+    return int((dist < head.radius_at(h[up]) + SAMPLE_SPACING).sum())

@@ -1,0 +1,303 @@
+"""The decomposition pipeline: STL mesh → support-free sub-parts with a build order.
+
+``decompose`` = repair/placement (:mod:`slicer.mesh_io`) → k-means coarse partition
+(:mod:`slicer.partition`) → groups and BFS build order (:mod:`slicer.buildorder`) → one
+separating plane per parent→child edge found by the directed local search
+(:mod:`slicer.planes`) → manifold3d split (:mod:`slicer.split`) → an independent check of
+constraints I and II on the final pieces in build order. It never returns a decomposition that
+breaks a constraint: it raises :class:`DecompositionError` instead.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from kinematics.machine import MachineGeometry
+from slicer.buildorder import MERGE_ANGLE, Groups, group_regions, root_region
+from slicer.mesh_io import check_size, place_on_platform, repair
+from slicer.partition import Partition, coarse_partition
+from slicer.planes import (
+    SAMPLE_SPACING,
+    Check,
+    PieceContext,
+    Plane,
+    PlaneSearchError,
+    SearchSettings,
+    fit_plane,
+    search_plane,
+    verify_base,
+)
+from slicer.printhead import Printhead
+from slicer.split import split_piece
+
+UP = np.array([0.0, 0.0, 1.0])
+
+
+class DecompositionError(ValueError):
+    """The part cannot be decomposed into printable sub-parts; ``str()`` is one line."""
+
+
+@dataclass(frozen=True)
+class DecomposeSettings:
+    """Knobs of the decomposition (config ``decompose.*``)."""
+
+    parts: int = 0  # coarse K; 0 = automatic
+    root: int | None = None  # coarse region holding the root; None = the flat base's
+    seed: int = 0
+    search: SearchSettings = field(default_factory=SearchSettings)
+    merge_angle: float = MERGE_ANGLE
+    nozzle_diameter: float = 0.4
+
+
+@dataclass
+class Subpart:
+    """One sub-part, in the platform frame.
+
+    Attributes
+    ----------
+    index : int
+    parent : int or None
+        Sub-part it is printed on (``None`` for the root).
+    mesh : trimesh.Trimesh
+        Watertight solid.
+    base_plane : Plane or None
+        Base plane, unit normal pointing into this sub-part (``None`` for the root, which sits
+        on the platform z = 0).
+    base_area : float
+        Area of the base cross-section, mm².
+    build_direction : (3,) float
+        Unit build direction (the base normal; +Z for the root).
+    iterations : int
+        Plane search perturbations used.
+    """
+
+    index: int
+    parent: int | None
+    mesh: trimesh.Trimesh
+    base_plane: Plane | None
+    base_area: float
+    build_direction: np.ndarray
+    iterations: int = 0
+
+    @property
+    def volume(self) -> float:
+        """Volume, mm³."""
+        return float(self.mesh.volume)
+
+
+@dataclass
+class Decomposition:
+    """Result of :func:`decompose`.
+
+    Attributes
+    ----------
+    placement : (4, 4) float
+        Input frame → platform frame.
+    subparts : list of Subpart
+        Indexed by ``Subpart.index``.
+    order : list of int
+        Build order (parents before children).
+    volume : float
+        Volume of the placed model, mm³.
+    timings : dict of str to float
+        Seconds per stage.
+    regions : int
+        Coarse regions after clean-up; ``k`` is the K given to k-means.
+    """
+
+    placement: np.ndarray
+    subparts: list[Subpart]
+    order: list[int]
+    volume: float
+    timings: dict[str, float]
+    regions: int
+    k: int
+    partition: Partition | None = field(default=None, repr=False)
+    groups: Groups | None = field(default=None, repr=False)
+
+    def to_json(self) -> dict[str, object]:
+        """The ``decomposition.json`` payload (files named ``part_<k>.stl``)."""
+        return {
+            "placement": np.asarray(self.placement).tolist(),
+            "volume_mm3": self.volume,
+            "order": list(self.order),
+            "coarse_k": self.k,
+            "coarse_regions": self.regions,
+            "subparts": [_subpart_json(s) for s in self.subparts],
+        }
+
+
+def _subpart_json(s: Subpart) -> dict[str, object]:
+    plane = None if s.base_plane is None else {
+        "point": np.asarray(s.base_plane.point).tolist(),
+        "normal": np.asarray(s.base_plane.normal).tolist()}
+    return {"index": s.index, "parent": s.parent, "file": f"part_{s.index}.stl",
+            "volume_mm3": s.volume, "base_plane": plane, "base_area_mm2": s.base_area,
+            "build_direction": np.asarray(s.build_direction).tolist(),
+            "plane_iterations": s.iterations}
+
+
+def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: MachineGeometry,
+              head: Printhead, build_volume: np.ndarray | None = None,
+              placement: np.ndarray | None = None) -> Decomposition:
+    """Decompose a part into support-free sub-parts.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        The part. When ``placement`` is None it is repaired and placed on its flat base;
+        otherwise it is taken as already placed by ``placement``.
+    settings : DecomposeSettings
+    machine : MachineGeometry
+        Only ``a_limits`` is used (reachability of build directions).
+    head : Printhead
+    build_volume : (3,) float, optional
+        Largest extents, mm.
+
+    Raises
+    ------
+    DecompositionError, slicer.mesh_io.MeshError
+    """
+    clock = _Clock()
+    if placement is None:
+        mesh, placed = place_on_platform(repair(mesh))
+        placement = placed.matrix
+    check_size(mesh, "<mesh>", build_volume, settings.nozzle_diameter)
+    clock.lap("load")
+    part = coarse_partition(mesh, settings.parts or None, settings.seed)
+    clock.lap("partition")
+    root = root_region(part) if settings.root is None else settings.root
+    if not 0 <= root < part.count:
+        raise DecompositionError(f"root region {root} does not exist (0..{part.count - 1})")
+    try:
+        groups = group_regions(part, root, settings.merge_angle)
+    except ValueError as exc:
+        raise DecompositionError(str(exc)) from None
+    clock.lap("build_order")
+    subparts = _cut_all(mesh, part, groups, settings, machine, head)
+    clock.lap("planes_split")
+    _verify(subparts, machine, head)
+    clock.lap("verify")
+    return Decomposition(np.asarray(placement, dtype=float), subparts, groups.order,
+                         float(mesh.volume), clock.laps, part.count, part.k_requested, part,
+                         groups)
+
+
+class _Clock:
+    def __init__(self) -> None:
+        self.t = time.perf_counter()
+        self.laps: dict[str, float] = {}
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.laps[name] = now - self.t
+        self.t = now
+
+
+def _cut_all(mesh: trimesh.Trimesh, part: Partition, groups: Groups,
+             settings: DecomposeSettings, machine: MachineGeometry,
+             head: Printhead) -> list[Subpart]:
+    """Cut every group from its parent's piece, in build order."""
+    face_group = groups.region_group[part.labels]
+    tree = cKDTree(part.mesh.triangles_center)
+    pieces: dict[int, trimesh.Trimesh] = {0: mesh}
+    subparts: dict[int, Subpart] = {0: Subpart(0, None, mesh, None, 0.0, UP)}
+    rng = np.random.default_rng(settings.seed)
+    for g in groups.order[1:]:
+        pg = groups.parent[g]
+        assert pg is not None
+        piece = pieces[pg]
+        region = face_group[tree.query(piece.triangles_center)[1]] == g
+        others = [p for k, p in pieces.items() if k != pg]
+        ctx = PieceContext(piece, region, _samples(others, settings.seed), head,
+                           machine.a_limits, settings.seed)
+        check, its = _find_plane(ctx, part, face_group, groups, g, pg, settings, rng)
+        child, rest = split_piece(piece, check.plane, check.child_faces)
+        pieces[pg], pieces[g] = rest, child
+        subparts[g] = Subpart(g, pg, child, check.plane, check.area, check.plane.normal, its)
+    for g, s in subparts.items():
+        s.mesh = pieces[g]
+    return [subparts[g] for g in sorted(subparts)]
+
+
+def _samples(meshes: list[trimesh.Trimesh], seed: int) -> np.ndarray:
+    """Surface samples (spacing about :data:`SAMPLE_SPACING`) and vertices of ``meshes``."""
+    out = [np.zeros((0, 3))]
+    for m in meshes:
+        count = max(int(m.area / SAMPLE_SPACING**2), 100)
+        out += [trimesh.sample.sample_surface(m, count, seed=seed)[0], m.vertices]
+    return np.concatenate(out)
+
+
+def _find_plane(ctx: PieceContext, part: Partition, face_group: np.ndarray, groups: Groups,
+                g: int, pg: int, settings: DecomposeSettings, rng: np.random.Generator
+                ) -> tuple[Check, int]:
+    """Search from the child's axis through the boundary, then from the boundary's LSQ plane."""
+    am = part.mesh
+    fa = face_group[am.face_adjacency]
+    edge = ((fa[:, 0] == g) & (fa[:, 1] == pg)) | ((fa[:, 1] == g) & (fa[:, 0] == pg))
+    if not edge.any():
+        edge = (fa[:, 0] == g) ^ (fa[:, 1] == g)
+    pts = am.vertices[am.face_adjacency_edges[edge].ravel()]
+    centre = am.triangles_center[face_group == g].mean(axis=0)
+    lsq = fit_plane(pts, centre)
+    axis = groups.direction[g] * np.sign(groups.direction[g] @ (centre - lsq.point) or 1.0)
+    total, best = 0, None
+    for start in (Plane(lsq.point, axis), lsq):
+        check, its = search_plane(ctx, start, settings.search, rng)
+        total += its
+        if check.ok:
+            return check, total
+        best = check if best is None or check.penalty < best.penalty else best
+    assert best is not None
+    raise DecompositionError(_failure(best, g, pg, total))
+
+
+def _failure(check: Check, g: int, pg: int, iterations: int) -> str:
+    where = "[" + ", ".join(f"{x:.1f}" for x in check.plane.point) + "]"
+    head = f"boundary between sub-part {pg} and sub-part {g} near {where} mm"
+    if not check.valid:
+        why = "constraint II fails: no plane leaves the child on its positive side"
+    elif not check.reachable:
+        why = "constraint II fails: the build direction is outside the A limits"
+    elif not check.platform_ok:
+        why = "constraint I fails: the printhead would reach below the platform"
+    else:
+        why = (f"constraint I fails: {check.collisions} samples of the printed part lie "
+               "inside the printhead")
+    return f"{head}: no plane after {iterations} iterations; {why}"
+
+
+def _verify(subparts: list[Subpart], machine: MachineGeometry, head: Printhead) -> None:
+    """Independent check of I and II on the final pieces, each against those before it."""
+    printed: list[trimesh.Trimesh] = []
+    for s in subparts:  # indices are in build order
+        if s.base_plane is not None:
+            obstacles = _samples(printed, 0)
+            problem = verify_base(s.mesh, s.base_plane, obstacles, head, machine.a_limits)
+            if problem:
+                raise DecompositionError(f"sub-part {s.index} on sub-part {s.parent}: "
+                                         f"{problem}")
+        printed.append(s.mesh)
+
+
+def write_decomposition(dec: Decomposition, out_dir: str | Path) -> Path:
+    """Write ``decomposition.json`` and ``part_<k>.stl`` into ``out_dir``; returns the JSON."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for s in dec.subparts:
+        s.mesh.export(out / f"part_{s.index}.stl")
+    path = out / "decomposition.json"
+    path.write_text(json.dumps(dec.to_json(), indent=2) + "\n", encoding="utf-8")
+    return path
+
+
+__all__ = ["DecomposeSettings", "Decomposition", "DecompositionError", "PlaneSearchError",
+           "Subpart", "decompose", "write_decomposition"]
