@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -214,9 +215,24 @@ class Registry:
         return None if notify else response(req_id, result=result)
 
 
+def _finite(obj: Any) -> Any:
+    """``obj`` with non-finite floats as JSON-friendly values (``"+Inf"``, ``None``)."""
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None if math.isnan(obj) else ("+Inf" if obj > 0 else "-Inf")
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
+
+
 def _encode_safe(message: Any) -> str:
     try:
         return encode(message)
+    except ValueError:
+        pass
+    try:
+        return encode(_finite(message))
     except (TypeError, ValueError) as exc:  # a result JSON cannot carry (NaN, bytes, ...)
         log.error("unencodable result: %s", exc)
         req_id = message.get("id") if isinstance(message, dict) else None

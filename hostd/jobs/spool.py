@@ -73,3 +73,51 @@ class Spool:
     def usage(self) -> dict[str, int]:
         files = [p for p in self.root.iterdir() if p.is_file() and not p.name.startswith(".")]
         return {"files": len(files), "bytes": sum(p.stat().st_size for p in files)}
+
+
+KINDS = {".stl": "stl", ".gcode": "gcode", ".gco": "gcode", ".g": "gcode", ".nc": "gcode"}
+SUFFIX = {"stl": ".stl", "gcode": ".gcode"}
+
+
+def upload_kind(name: str, kind: str | None) -> str:
+    """``stl`` or ``gcode``, given explicitly or from the file name's extension."""
+    if kind is not None:
+        if kind not in SUFFIX:
+            raise SpoolError(f"unknown upload kind {kind!r} (stl or gcode)")
+        return kind
+    ext = Path(name).suffix.lower()
+    if ext not in KINDS:
+        raise SpoolError(f"{name}: cannot tell the kind from the extension "
+                         "(.stl or .gcode); pass kind")
+    return KINDS[ext]
+
+
+def check_stl(data: bytes, name: str) -> None:
+    """A cheap structural check before anything is queued; the slicer does the real parse."""
+    if data[:5].lower() == b"solid" and b"facet" in data[:4096].lower():
+        try:
+            data.decode("ascii")
+        except UnicodeDecodeError:
+            raise SpoolError(f"{name}: ASCII STL with non-ASCII bytes") from None
+        if b"endsolid" not in data[-4096:].lower():
+            raise SpoolError(f"{name}: ASCII STL is truncated (no endsolid)")
+        return
+    if len(data) < 84:
+        raise SpoolError(f"{name}: not an STL file ({len(data)} bytes)")
+    count = int.from_bytes(data[80:84], "little")
+    if count == 0:
+        raise SpoolError(f"{name}: STL has no triangles")
+    if len(data) != 84 + 50 * count:
+        raise SpoolError(f"{name}: corrupt binary STL: {count} triangles need "
+                         f"{84 + 50 * count} bytes, got {len(data)}")
+
+
+def check_gcode(data: bytes, name: str) -> str:
+    """The text of a G-code upload; :class:`SpoolError` for binary data."""
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise SpoolError(f"{name}: G-code is not UTF-8 text") from None
+    if "\0" in text:
+        raise SpoolError(f"{name}: G-code contains NUL bytes")
+    return text

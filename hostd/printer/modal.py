@@ -52,6 +52,7 @@ class ModalState:
     bed: float = 0.0
     fan: int = 0
     homed: bool = False
+    extruded: float = 0.0  # net filament fed (mm), retractions included
 
     def apply(self, command: str) -> None:
         """Update from one (comment-free) G-code command."""
@@ -66,8 +67,9 @@ class ModalState:
                 self.position[axis] = (args[axis] if self.absolute
                                        else self.position[axis] + args[axis])
         if "E" in args:
-            self.position["E"] = (args["E"] if self.e_absolute
-                                  else self.position["E"] + args["E"])
+            new = args["E"] if self.e_absolute else self.position["E"] + args["E"]
+            self.extruded += new - self.position["E"]
+            self.position["E"] = new
         if "F" in args:
             self.feedrate = args["F"]
 

@@ -1,0 +1,253 @@
+"""hostctl verbs that talk to the daemon: print, status, jobs, pause, resume, cancel, send,
+estop, watch.
+
+Exit codes (see :mod:`hostd.cli.errors`): 0 ok, 1 the job failed/was cancelled/interrupted,
+2 bad arguments or input file, 3 daemon unreachable, 4 the daemon refused the request.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from hostd.cli.client import Client, socket_path
+from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, CliError
+
+FINAL = {"completed", "failed", "cancelled", "interrupted"}
+
+
+def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    p = subparsers.add_parser("print", help="upload FILE (STL or G-code) and print it")
+    p.add_argument("file")
+    p.add_argument("--wait", action="store_true", help="show progress until the job ends")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_print)
+
+    p = subparsers.add_parser("status", help="printer and current job")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_status)
+
+    p = subparsers.add_parser("jobs", help="the job list")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_jobs)
+
+    for verb, helptext in (("pause", "pause the current job"),
+                           ("cancel", "cancel a job (default: the current one)")):
+        p = subparsers.add_parser(verb, help=helptext)
+        p.add_argument("id", nargs="?", type=int)
+        p.add_argument("--json", action="store_true")
+        p.set_defaults(func=cmd_job_verb, method=f"job.{verb}")
+
+    p = subparsers.add_parser("resume", help="resume a paused or interrupted job")
+    p.add_argument("id", nargs="?", type=int)
+    p.add_argument("--from", dest="scope", default="checkpoint",
+                   choices=("checkpoint", "subpart", "layer"),
+                   help="for an interrupted job: where to restart (default: last checkpoint)")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_resume)
+
+    p = subparsers.add_parser("send", help="send raw G-code lines")
+    p.add_argument("gcode", nargs="+")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_send)
+
+    p = subparsers.add_parser("estop", help="emergency stop (M112)")
+    p.set_defaults(func=cmd_estop)
+
+    p = subparsers.add_parser("watch", help="print the daemon's event stream")
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_watch)
+
+
+def _client(args: argparse.Namespace, timeout: float | None = 30.0) -> Client:
+    return Client(socket_path(getattr(args, "socket", None)), timeout)
+
+
+def _emit_json(data: Any) -> None:
+    print(json.dumps(data, indent=None, sort_keys=True))
+
+
+def cmd_print(args: argparse.Namespace) -> int:
+    path = Path(args.file)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise CliError(f"{path}: {exc.strerror or exc}", EXIT_USAGE) from None
+    with _client(args, timeout=600.0) as c:
+        if args.wait:
+            c.call("events.subscribe", events=["job.state", "job.progress", "job.subpart",
+                                               "subpart_started", "transition_failed"])
+        job = c.call("job.submit", name=path.name, data=base64.b64encode(data).decode())
+        if not args.wait:
+            if args.json:
+                _emit_json(job)
+            else:
+                print(f"job {job['id']} {job['state']}: {job['name']}")
+            return EXIT_OK
+        final = _follow(c, job, args.json)
+    return EXIT_OK if final == "completed" else EXIT_FAILED
+
+
+def _follow(c: Client, job: dict[str, Any], as_json: bool) -> str:
+    job_id, state = job["id"], job["state"]
+    bar = ProgressBar(sys.stdout, job_id, job["name"])
+    bar.state = state
+    if state in FINAL:
+        return str(state)
+    for event, data in c.events():
+        if data.get("job_id") != job_id:
+            continue
+        if as_json:
+            _emit_json({"event": event, **data})
+        if event == "job.state":
+            bar.state = data["new"]
+            bar.reason = data.get("reason", "")
+            if not as_json:
+                bar.line_break(f"job {job_id} {data['new']}: {data.get('reason', '')}")
+            if data["new"] in FINAL:
+                return str(data["new"])
+        elif event == "job.progress" and not as_json:
+            bar.update(data)
+        elif event == "transition_failed" and not as_json:
+            bar.line_break(f"transition to sub-part {data.get('subpart')} failed: "
+                           f"{data.get('reason')}")
+    return "interrupted"
+
+
+class ProgressBar:
+    """``[#####.....]  42.0% printing  sub-part 1  layer 7  ETA 0:03:12`` on one line."""
+
+    WIDTH = 30
+
+    def __init__(self, out: Any, job_id: int, name: str) -> None:
+        self.out = out
+        self.tty = bool(getattr(out, "isatty", lambda: False)())
+        self.job_id, self.name = job_id, name
+        self.state, self.reason = "queued", ""
+        self.last_pct = -10.0
+
+    def render(self, p: dict[str, Any]) -> str:
+        ratio = float(p.get("progress") or 0.0)
+        filled = int(ratio * self.WIDTH)
+        eta = p.get("eta_s")
+        eta_s = "--:--" if eta is None else _hms(float(eta))
+        return (f"[{'#' * filled}{'.' * (self.WIDTH - filled)}] {ratio * 100:5.1f}% "
+                f"{self.state:<9} sub-part {p.get('subpart')} layer {p.get('layer')} "
+                f"ETA {eta_s}")
+
+    def update(self, p: dict[str, Any]) -> None:
+        text = self.render(p)
+        pct = float(p.get("progress") or 0.0) * 100
+        if self.tty:
+            self.out.write("\r" + text)
+            self.out.flush()
+        elif pct - self.last_pct >= 10 or pct >= 100:
+            self.last_pct = pct
+            print(text, file=self.out, flush=True)
+
+    def line_break(self, text: str) -> None:
+        if self.tty:
+            self.out.write("\r\033[K")
+        print(text, file=self.out, flush=True)
+
+
+def _hms(seconds: float) -> str:
+    s = max(0, int(seconds))
+    return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+def cmd_status(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        snap = c.call("printer.status")
+    if args.json:
+        _emit_json(snap)
+        return EXIT_OK
+    link = snap.get("link", {})
+    jobs = snap.get("jobs", {})
+    print(f"printer: {snap['daemon']['info'].get('machine')}  link: "
+          f"{link.get('state', '?')}  port: {link.get('port')}")
+    for name, t in (link.get("temperatures") or {}).items():
+        print(f"  {name}: {t.get('actual')} / {t.get('target')} °C")
+    cur = jobs.get("current")
+    if cur:
+        eta = cur.get("remaining_s")
+        print(f"job {cur['id']} {cur['state']}: {cur['info']['name']}  "
+              f"{cur['progress'] * 100:.1f}%  sub-part {cur['subpart']}  layer {cur['layer']}"
+              f"  ETA {'--' if eta is None else _hms(eta)}")
+        if cur.get("pause_reason"):
+            print(f"  paused: {cur['pause_reason']}")
+    else:
+        print("no job printing")
+    print(f"queue: {jobs.get('queue_length', 0)} waiting")
+    return EXIT_OK
+
+
+def cmd_jobs(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        jobs = c.call("job.list")["jobs"]
+    if args.json:
+        _emit_json(jobs)
+        return EXIT_OK
+    if not jobs:
+        print("no jobs")
+    for j in jobs:
+        print(f"{j['id']:>4}  {j['state']:<11} {j['progress'] * 100:5.1f}%  "
+              f"line {j['acked_lines']}/{j['total_lines']}  {j['name']}"
+              + (f"  ({j['reason']})" if j.get("reason") else ""))
+    return EXIT_OK
+
+
+def _show_job(job: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        _emit_json(job)
+    else:
+        print(f"job {job['id']} {job['state']}" + (f": {job['reason']}" if job.get("reason")
+                                                  else ""))
+
+
+def cmd_job_verb(args: argparse.Namespace) -> int:
+    with _client(args, timeout=600.0) as c:
+        job = c.call(args.method, timeout=600.0, id=args.id)
+    _show_job(job, args.json)
+    return EXIT_OK
+
+
+def cmd_resume(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        job = c.call("job.resume", id=args.id, **{"from": args.scope})
+    _show_job(job, args.json)
+    return EXIT_OK
+
+
+def cmd_send(args: argparse.Namespace) -> int:
+    with _client(args, timeout=600.0) as c:
+        res = c.call("printer.gcode", timeout=600.0, script="\n".join(args.gcode))
+    if args.json:
+        _emit_json(res)
+        return EXIT_OK
+    for cmd, reply in zip(res["commands"], res["replies"], strict=False):
+        print(f"{cmd}: {json.dumps(reply) if not isinstance(reply, str) else reply}")
+    return EXIT_OK
+
+
+def cmd_estop(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        c.call("printer.estop")
+    print("emergency stop sent")
+    return EXIT_OK
+
+
+def cmd_watch(args: argparse.Namespace) -> int:
+    with _client(args, timeout=None) as c:
+        c.call("events.subscribe")
+        for event, data in c.events():
+            if args.json:
+                _emit_json({"event": event, **data})
+            else:
+                rest = " ".join(f"{k}={v}" for k, v in data.items() if k != "event")
+                print(f"{event} {rest}", flush=True)
+    return EXIT_OK

@@ -1,0 +1,230 @@
+"""The hostd daemon: wiring of the components, signals, graceful shutdown, stderr logging.
+
+Components (serial link, job manager, slicing worker, control server, event bus, metrics) each
+expose a read-only ``status()``; :meth:`Daemon.snapshot` gathers them for ``printer.status``
+and the metrics exporter. SIGTERM/SIGINT stop the job at a safe point (after the acknowledged
+lines; the job is recorded ``interrupted`` with its modal state) and close everything.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from hostd import __version__
+from hostd.config import Config
+from hostd.control.endpoints import build_registry
+from hostd.control.events import EventBus
+from hostd.control.server import ControlError, ControlServer
+from hostd.jobs.manager import JobManager
+from hostd.jobs.spool import Spool
+from hostd.jobs.store import JobStore, StoreError
+from hostd.link.errors import LinkError
+from hostd.link.link import SerialLink
+from hostd.link.replies import Reply, Temperatures
+from hostd.link.settings import link_settings_from_config
+from hostd.printer.streamer import StreamSettings
+from hostd.sdnotify import notify
+from hostd.sim.settings import sim_settings_from_config
+from hostd.slicing_worker import SlicingWorker
+
+log = logging.getLogger("hostd")
+
+EXIT_OK = 0
+EXIT_FAILED = 1
+TEMPERATURE_INTERVAL = 2.0  # s between idle temperature reports
+MESSAGE_OVERHEAD = 64 * 1024  # JSON-RPC envelope around a base64 upload
+
+
+class DaemonError(Exception):
+    """The daemon cannot start (state directory, socket, database)."""
+
+
+class LinkPort:
+    """The streamer's view of :class:`SerialLink`."""
+
+    def __init__(self, link: SerialLink) -> None:
+        self.link = link
+
+    async def send(self, command: str) -> asyncio.Future[int]:
+        return self.link.submit(command)
+
+    async def query(self, command: str) -> tuple[Reply, ...]:
+        return (await self.link.query(command),)
+
+
+def stream_settings(cfg: Config) -> StreamSettings:
+    p = cfg.section("process")
+    t = cfg.section("transition")
+    return StreamSettings(
+        lookahead=int(cfg.get("serial.max_queued", 64)),
+        retract=float(p["retract_length"]), retract_f=float(p["retract_speed"]) * 60,
+        lift=10.0, lift_f=600.0, travel_f=float(p["travel_speed"]) * 60,
+        rotary_f=float(cfg["machine.max_rotary_velocity"]) * 60,
+        safe_height=float(p["safe_height"]), z_max=float(cfg["machine.z_range"][1]),
+        position_tolerance=float(t["position_tolerance"]),
+        angle_tolerance=float(t["angle_tolerance"]),
+        temperature_tolerance=float(t["temperature_tolerance"]),
+        end_gcode=str(p["end_gcode"]))
+
+
+class Daemon:
+    """All components of one running daemon."""
+
+    def __init__(self, config: Config) -> None:
+        self.config = config
+        self.state_dir = Path(config["daemon.state_dir"])
+        self.is_sim = str(config["serial.port"]).startswith("sim://")
+        self.bus = EventBus()
+        self.started = time.time()
+        self.stopping = asyncio.Event()
+        self.link = SerialLink(link_settings_from_config(config),
+                               sim_settings_from_config(config) if self.is_sim else None)
+        self.worker: SlicingWorker | None = None
+        self.store: JobStore | None = None
+        self.server: ControlServer | None = None
+        self.metrics: Any = None
+        self._tasks: list[asyncio.Task[None]] = []
+        self._jobs: JobManager | None = None
+
+    @property
+    def jobs(self) -> JobManager:
+        assert self._jobs is not None
+        return self._jobs
+
+    async def start(self) -> None:
+        try:
+            self.state_dir.mkdir(parents=True, exist_ok=True)
+            self.store = JobStore(self.state_dir / "jobs.db")
+        except (OSError, StoreError) as exc:
+            raise DaemonError(str(exc)) from None
+        spool = Spool(self.state_dir / "spool", self.config["daemon.max_upload_bytes"])
+        self.worker = SlicingWorker(self.state_dir / "cache", self.config.values)
+        self._jobs = JobManager(self.store, spool, self.worker, lambda: LinkPort(self.link),
+                                self.bus, stream_settings(self.config))
+        self.server = ControlServer(
+            self.config["daemon.socket"], build_registry(self), self.bus,
+            max_message=self.config["daemon.max_upload_bytes"] * 4 // 3 + MESSAGE_OVERHEAD)
+        try:
+            await self.server.start()
+        except ControlError as exc:
+            raise DaemonError(str(exc)) from None
+        await self._connect_link()
+        self.jobs.start()
+        self._start_metrics()
+        self._tasks.append(asyncio.create_task(self._temperature_monitor(), name="temps"))
+        notify("READY=1")
+        log.info("hostd %s ready (socket %s, state %s)", __version__,
+                 self.config["daemon.socket"], self.state_dir)
+
+    async def _connect_link(self) -> None:
+        try:
+            await self.link.connect()
+        except LinkError as exc:  # the link keeps reconnecting in the background
+            log.error("serial link: %s", exc)
+
+    def _start_metrics(self) -> None:
+        if not self.config["metrics.enabled"]:
+            return
+        from hostd.metrics.server import MetricsError, MetricsServer
+
+        self.metrics = MetricsServer(self.config["metrics.host"], self.config["metrics.port"],
+                                     self.snapshot)
+        try:
+            self.metrics.start()
+        except MetricsError as exc:
+            log.error("%s", exc)
+            self.metrics = None
+
+    async def _temperature_monitor(self) -> None:
+        """Publish temperatures: queried while idle, observed from the link while printing."""
+        while True:
+            temps = self.link.status().get("temperatures") or {}
+            if self.jobs.active is None and self.link.connected:
+                with contextlib.suppress(LinkError):
+                    reply = await self.link.query("M105")
+                    if isinstance(reply, Temperatures):
+                        temps = {k: {"actual": h.actual, "target": h.target}
+                                 for k, h in reply.heaters.items()}
+            if temps:
+                self.bus.publish("printer.temperatures", {"heaters": temps})
+            await asyncio.sleep(TEMPERATURE_INTERVAL)  # a report period, not synchronisation
+
+    async def emergency_stop(self) -> None:
+        log.warning("emergency stop requested")
+        self.link.emergency_stop()
+        self.bus.publish("printer.state", {"state": "halted", "reason": "emergency stop"})
+
+    def emulator_log(self) -> list[tuple[int | None, str]]:
+        conn = self.link.connection
+        emulator = getattr(conn, "emulator", None) if conn is not None else None
+        if emulator is None:
+            return []
+        return list(emulator.firmware.log)
+
+    async def run(self) -> int:
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, self.stopping.set)
+        try:
+            await self.start()
+        except DaemonError as exc:
+            log.error("%s", exc)
+            await self.close()
+            return EXIT_FAILED
+        await self.stopping.wait()
+        log.info("stopping")
+        notify("STOPPING=1")
+        await self.close()
+        return EXIT_OK
+
+    async def close(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        if self.server is not None:
+            await self.server.close()
+        if self._jobs is not None:
+            await self._jobs.stop("daemon stopped (SIGTERM)")
+        with contextlib.suppress(LinkError):
+            await self.link.close()
+        if self.worker is not None:
+            self.worker.close()
+        if self.metrics is not None:
+            self.metrics.stop()
+        if self.store is not None:
+            self.store.close()
+
+    def snapshot(self) -> dict[str, Any]:
+        """Every component's ``status()`` (plain JSON)."""
+        link = self.link.status()
+        return {
+            "daemon": {"info": {"version": __version__, "machine": self.config["machine.name"],
+                                "firmware_name": link.get("firmware_name")},
+                       "pid": os.getpid(), "uptime_s": time.time() - self.started,
+                       "state_dir": str(self.state_dir), "emulator": self.is_sim},
+            "link": link,
+            "jobs": self.jobs.status() if self._jobs is not None else {},
+            "slicer": self.worker.status() if self.worker is not None else {},
+            "control": self.server.status() if self.server is not None else {},
+            "events": self.bus.status(),
+            "metrics": self.metrics.status() if self.metrics is not None else None,
+        }
+
+
+def setup_logging(level: str) -> None:
+    logging.basicConfig(stream=sys.stderr, level=getattr(logging, level.upper()),
+                        format="%(levelname)s %(name)s: %(message)s", force=True)
+
+
+def run_daemon(config: Config) -> int:
+    """Run until SIGTERM/SIGINT; the exit status of ``hostd``."""
+    setup_logging(config["daemon.log_level"])
+    return asyncio.run(Daemon(config).run())

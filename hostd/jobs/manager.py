@@ -1,0 +1,479 @@
+"""The job manager: submit, slice ahead, print FIFO, pause/resume/cancel, recover after a crash.
+
+It owns the job store and the spool, hands STL jobs to the slicing worker, runs at most one
+:class:`~hostd.printer.streamer.Streamer` at a time on the printer port, persists progress
+(throttled, plus at every layer, pause and checkpoint) and publishes events on the bus.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from hostd.control.events import EventBus
+from hostd.control.rpc import PrinterBusy, ShuttingDown
+from hostd.jobs.spool import SUFFIX, Spool, SpoolError, check_gcode, check_stl, upload_kind
+from hostd.jobs.states import TERMINAL, JobState, JobStateError
+from hostd.jobs.store import Job, JobStore
+from hostd.link.errors import FirmwareReset, LinkError, LinkLost
+from hostd.printer.errors import PrinterError, ProgramError
+from hostd.printer.modal import ModalState
+from hostd.printer.program import Program, Transition, parse_program
+from hostd.printer.streamer import Hooks, Port, Streamer, StreamSettings
+from hostd.slicing_worker import SliceError, SlicingWorker
+
+log = logging.getLogger(__name__)
+
+PERSIST_INTERVAL = 0.25  # s between progress writes (also at every layer change)
+EVENT_INTERVAL = 0.2  # s between progress events
+RESUME_SCOPES = ("checkpoint", "subpart", "layer")
+
+
+@dataclass
+class Active:
+    """The job on the printer and its live figures."""
+
+    job: Job
+    program: Program
+    streamer: Streamer
+    started: float
+    paused_at: float | None = None
+    paused_total: float = 0.0
+    last_persist: float = 0.0
+    last_event: float = 0.0
+    last_layer: tuple[int | None, int | None] = (None, None)
+    filament_base: float = 0.0
+
+    def elapsed(self, now: float) -> float:
+        paused = self.paused_total + (now - self.paused_at if self.paused_at else 0.0)
+        return max(0.0, now - self.started - paused)
+
+
+class JobManager:
+    """Jobs from upload to outcome. Create, then :meth:`start`; :meth:`stop` at shutdown."""
+
+    def __init__(self, store: JobStore, spool: Spool, worker: SlicingWorker | None,
+                 port_factory: Callable[[], Port], bus: EventBus,
+                 settings: StreamSettings) -> None:
+        self.store = store
+        self.spool = spool
+        self.worker = worker
+        self.port_factory = port_factory
+        self.bus = bus
+        self.settings = settings
+        self.active: Active | None = None
+        self._wake_print = asyncio.Event()
+        self._wake_slice = asyncio.Event()
+        self._tasks: list[asyncio.Task[None]] = []
+        self._stopping = False
+        self._resume_request: tuple[int, str] | None = None
+        self._done: dict[int, asyncio.Event] = {}
+        self._paused_evt: dict[int, asyncio.Event] = {}
+        counts = store.counts()
+        self.finished = {s: counts[s] for s in ("completed", "failed", "cancelled",
+                                                  "interrupted")}
+        self.transitions = {"total": 0, "failed": 0}
+        self.recovered: list[int] = []
+
+    # -- life cycle ------------------------------------------------------------------------
+
+    def start(self) -> None:
+        for job in self.store.recover():
+            self.recovered.append(job.id)
+            if job.state is JobState.INTERRUPTED:
+                self.finished["interrupted"] += 1
+            log.warning("job %d %s: %s", job.id, job.state, job.reason)
+        self._tasks = [asyncio.create_task(self._print_loop(), name="print-loop"),
+                       asyncio.create_task(self._slice_loop(), name="slice-loop")]
+        self._wake_print.set()
+        self._wake_slice.set()
+
+    async def stop(self, reason: str = "daemon stopped") -> None:
+        """Stop at a safe point: the active job stops feeding after its acked lines and is
+        recorded ``interrupted`` with its progress and modal state."""
+        self._stopping = True
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        act = self.active
+        if act is not None:
+            self._persist(act, force=True)
+            job = self.store.get(act.job.id)
+            if job.state in (JobState.PRINTING, JobState.PAUSED):
+                self._set_state(job.id, JobState.INTERRUPTED,
+                                f"{reason} at line {act.streamer.acked}")
+            self.active = None
+
+    # -- requests (from the control endpoints) -------------------------------------------
+
+    async def submit(self, name: str, data: bytes, kind: str | None = None) -> Job:
+        if self._stopping:
+            raise ShuttingDown("the daemon is shutting down")
+        kind = upload_kind(name, kind)
+        self.spool.check_size(len(data))
+        estimate: dict[str, Any] = {}
+        total = 0
+        if kind == "stl":
+            check_stl(data, name)
+        else:
+            program = await asyncio.to_thread(_parse_upload, data, name)
+            estimate, total = program.estimate, program.total
+        sha = await asyncio.to_thread(self.spool.put, data, SUFFIX[kind])
+        job = self.store.add(Path(name).name[:200] or "upload", kind, sha,
+                             gcode_sha=sha if kind == "gcode" else None, estimate=estimate)
+        self._emit_state(job, None, "submitted")
+        if kind == "gcode":
+            self.store.update(job.id, total_lines=total)
+            self._set_state(job.id, JobState.READY, "g-code upload")
+            self._wake_print.set()
+        else:
+            self._wake_slice.set()
+        return self.store.get(job.id)
+
+    async def pause(self, job_id: int, wait: bool = True) -> Job:
+        act = self._require_active(job_id, JobState.PRINTING)
+        evt = self._paused_evt.setdefault(job_id, asyncio.Event())
+        act.streamer.request_pause("paused by operator")
+        if wait:
+            await self._wait_paused_or_done(job_id, evt)
+        return self.store.get(job_id)
+
+    async def resume(self, job_id: int, scope: str = "checkpoint") -> Job:
+        job = self.store.get(job_id)
+        if job.state is JobState.PAUSED and self.active and self.active.job.id == job_id:
+            self.active.streamer.request_resume()
+            return job
+        if job.state is not JobState.INTERRUPTED:
+            raise JobStateError(f"job {job_id} is {job.state}; only paused or interrupted jobs "
+                                "resume")
+        if scope not in RESUME_SCOPES:
+            raise JobStateError(f"resume from {scope!r}: use one of {', '.join(RESUME_SCOPES)}")
+        if self.active is not None or self._resume_request is not None:
+            raise PrinterBusy("another job is on the printer")
+        self._resume_request = (job_id, scope)
+        self._wake_print.set()
+        return job
+
+    async def cancel(self, job_id: int, wait: bool = True) -> Job:
+        job = self.store.get(job_id)
+        act = self.active
+        if act is not None and act.job.id == job_id:
+            done = self._done.setdefault(job_id, asyncio.Event())
+            act.streamer.request_cancel()
+            if wait:
+                await done.wait()
+            return self.store.get(job_id)
+        if job.state in TERMINAL:
+            raise JobStateError(f"job {job_id} is already {job.state}")
+        self._set_state(job_id, JobState.CANCELLED, "cancelled by operator")
+        return self.store.get(job_id)
+
+    async def delete(self, job_id: int) -> Job:
+        job = self.store.delete(job_id)
+        for sha, kind in ((job.upload_sha, job.kind), (job.gcode_sha, "gcode")):
+            if sha and self.store.references(sha) == 0:
+                await asyncio.to_thread(self.spool.remove, sha, SUFFIX[kind])
+        return job
+
+    async def wait_finished(self, job_id: int) -> Job:
+        """Until the job reaches a terminal state (or is interrupted/paused by failure)."""
+        evt = self._done.setdefault(job_id, asyncio.Event())
+        if self.store.get(job_id).state in TERMINAL:
+            return self.store.get(job_id)
+        await evt.wait()
+        return self.store.get(job_id)
+
+    def _require_active(self, job_id: int, state: JobState) -> Active:
+        job = self.store.get(job_id)
+        act = self.active
+        if act is None or act.job.id != job_id or job.state is not state:
+            raise JobStateError(f"job {job_id} is {job.state}, not {state}")
+        return act
+
+    async def _wait_paused_or_done(self, job_id: int, evt: asyncio.Event) -> None:
+        done = self._done.setdefault(job_id, asyncio.Event())
+        waiters = [asyncio.ensure_future(evt.wait()), asyncio.ensure_future(done.wait())]
+        try:
+            await asyncio.wait(waiters, return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for w in waiters:
+                w.cancel()
+
+    # -- slicing ---------------------------------------------------------------------------
+
+    async def _slice_loop(self) -> None:
+        while True:
+            await self._wake_slice.wait()
+            self._wake_slice.clear()
+            while (job := self._next_stl()) is not None:
+                await self._slice_one(job)
+
+    def _next_stl(self) -> Job | None:
+        for job in self.store.list([JobState.QUEUED]):
+            if job.kind == "stl":
+                return job
+        return None
+
+    async def _slice_one(self, job: Job) -> None:
+        self._set_state(job.id, JobState.SLICING, "slicing")
+        try:
+            if self.worker is None:
+                raise SliceError("no slicing worker")
+            stl = self.spool.path(job.upload_sha, ".stl")
+            outcome = await self.worker.slice(stl, job.upload_sha)
+            data = await asyncio.to_thread(outcome.gcode_path.read_bytes)
+            program = await asyncio.to_thread(_parse_upload, data, job.name)
+            sha = await asyncio.to_thread(self.spool.put, data, ".gcode")
+        except (SliceError, SpoolError, PrinterError) as exc:
+            if self.store.get(job.id).state is JobState.SLICING:
+                self._set_state(job.id, JobState.FAILED, f"slicing failed: {exc}")
+            return
+        if self.store.get(job.id).state is not JobState.SLICING:
+            return  # cancelled meanwhile
+        info = {**outcome.info, "slice_s": round(outcome.duration_s, 3),
+                "cache_hit": outcome.cache_hit, "subparts": len(program.subparts),
+                "layers": len(program.layers), "transitions": len(program.transitions)}
+        self.store.update(job.id, gcode_sha=sha, total_lines=program.total,
+                          estimate=program.estimate, info=info)
+        self._set_state(job.id, JobState.READY, "sliced")
+        self._wake_print.set()
+
+    # -- printing --------------------------------------------------------------------------
+
+    async def _print_loop(self) -> None:
+        while True:
+            await self._wake_print.wait()
+            self._wake_print.clear()
+            while True:
+                if self._resume_request is not None:
+                    job_id, scope = self._resume_request
+                    await self._run_resumed(job_id, scope)
+                    continue
+                job = self.store.first(JobState.READY)
+                if job is None:
+                    break
+                await self._run(job, 0, None, [])
+
+    async def _run_resumed(self, job_id: int, scope: str) -> None:
+        try:
+            job = self.store.get(job_id)
+            program = await self._load_program(job)
+            start, modal, prelude = self._resume_point(job, program, scope)
+        except Exception:
+            self._resume_request = None
+            raise
+        self._resume_request = None
+        log.info("job %d resumes from %s at command %d", job_id, scope, start)
+        await self._run(job, start, modal, prelude, program=program,
+                        note=f"resumed from {scope} at line {start}")
+
+    def _resume_point(self, job: Job, program: Program, scope: str
+                      ) -> tuple[int, ModalState, list[str]]:
+        if scope == "checkpoint":
+            cp = self.store.last_checkpoint(job.id)
+            start = cp.line if cp is not None else program.resume_index(job.acked_lines,
+                                                                          "subpart")
+        else:
+            start = program.resume_index(min(job.acked_lines, max(program.total - 1, 0)), scope)
+        modal = program.modal_before(start)
+        s = self.settings
+        prelude = [] if start == 0 else modal.restart_commands(
+            min(s.z_max, modal.position["Z"] + s.safe_height), s.travel_f, s.rotary_f, s.lift_f)
+        return start, modal, prelude
+
+    async def _load_program(self, job: Job) -> Program:
+        if job.gcode_sha is None:
+            raise PrinterError(f"job {job.id} has no G-code")
+        data = await asyncio.to_thread(self.spool.read, job.gcode_sha, ".gcode")
+        return await asyncio.to_thread(_parse_upload, data, job.name)
+
+    async def _run(self, job: Job, start: int, modal: ModalState | None, prelude: list[str],
+                   program: Program | None = None, note: str = "") -> None:
+        try:
+            if program is None:
+                program = await self._load_program(job)
+        except (SpoolError, PrinterError) as exc:
+            self._set_state(job.id, JobState.FAILED, str(exc))
+            return
+        port = self.port_factory()
+        streamer = Streamer(port, program, self.settings, self._hooks(job.id), start=start,
+                            modal=modal, prelude=prelude)
+        act = Active(self.store.get(job.id), program, streamer, time.monotonic(),
+                     filament_base=0.0)
+        self.active = act
+        self._set_state(job.id, JobState.PRINTING, note or "printing")
+        outcome, reason = "failed", ""
+        try:
+            outcome = await streamer.run()
+        except FirmwareReset as exc:
+            outcome, reason = "interrupted", f"firmware reset: {exc}"
+        except (LinkLost, LinkError) as exc:
+            outcome = "interrupted" if isinstance(exc, LinkLost) else "failed"
+            reason = f"serial link: {exc}"
+        except PrinterError as exc:
+            reason = str(exc)
+        if self._stopping:
+            return  # stop() records the state
+        self._persist(act, force=True)
+        self.active = None
+        state = {"completed": JobState.COMPLETED, "cancelled": JobState.CANCELLED,
+                 "interrupted": JobState.INTERRUPTED}.get(outcome, JobState.FAILED)
+        with contextlib.suppress(JobStateError):
+            self._set_state(job.id, state, reason or outcome)
+
+    # -- streamer hooks --------------------------------------------------------------------
+
+    def _hooks(self, job_id: int) -> Hooks:
+        return Hooks(progress=self._on_progress, paused=self._on_paused,
+                     resumed=self._on_resumed, checkpoint=self._on_checkpoint,
+                     event=lambda name, data: self._on_event(job_id, name, data))
+
+    def _on_progress(self, st: Streamer) -> None:
+        act = self.active
+        if act is None:
+            return
+        now = time.monotonic()
+        layer = (st.subpart, st.layer)
+        changed = layer != act.last_layer
+        if changed or now - act.last_persist >= PERSIST_INTERVAL or st.acked == st.program.total:
+            act.last_layer = layer
+            self._persist(act)
+        if changed or now - act.last_event >= EVENT_INTERVAL:
+            act.last_event = now
+            self.bus.publish("job.progress", self._progress(act, now))
+
+    def _persist(self, act: Active, force: bool = False) -> None:
+        st = act.streamer
+        act.last_persist = time.monotonic()
+        self.store.update(act.job.id, acked_lines=st.acked, subpart=st.subpart, layer=st.layer,
+                          modal=st.modal.snapshot(), filament_mm=st.modal.extruded,
+                          print_seconds=act.elapsed(act.last_persist))
+
+    def _on_paused(self, st: Streamer, reason: str) -> None:
+        act = self.active
+        if act is None:
+            return
+        act.paused_at = time.monotonic()
+        self._persist(act, force=True)
+        self.store.update(act.job.id, modal=(st.paused_modal or st.modal).snapshot())
+        self._set_state(act.job.id, JobState.PAUSED, reason)
+        evt = self._paused_evt.pop(act.job.id, None)
+        if evt is not None:
+            evt.set()
+
+    def _on_resumed(self, st: Streamer) -> None:
+        act = self.active
+        if act is None:
+            return
+        if act.paused_at is not None:
+            act.paused_total += time.monotonic() - act.paused_at
+            act.paused_at = None
+        self._set_state(act.job.id, JobState.PRINTING, "resumed")
+
+    def _on_checkpoint(self, st: Streamer, tr: Transition, pose: dict[str, float]) -> None:
+        act = self.active
+        if act is None:
+            return
+        self.transitions["total"] += 1
+        self.store.add_checkpoint(act.job.id, tr.subpart, tr.parent, pose.get("A", 0.0),
+                                  pose.get("C", 0.0), tr.end, pose)
+        self._persist(act, force=True)
+
+    def _on_event(self, job_id: int, name: str, data: dict[str, Any]) -> None:
+        if name == "transition_failed":
+            self.transitions["total"] += 1
+            self.transitions["failed"] += 1
+        self.bus.publish(name, {"job_id": job_id, **data})
+
+    # -- state changes and snapshots -------------------------------------------------------
+
+    def _set_state(self, job_id: int, new: JobState, reason: str) -> Job:
+        old = self.store.get(job_id).state
+        job = self.store.transition(job_id, new, reason)
+        if new.value in self.finished and new is not old:
+            self.finished[new.value] += 1
+        self._emit_state(job, old, reason)
+        if new in TERMINAL or new is JobState.INTERRUPTED:
+            evt = self._done.pop(job_id, None)
+            if evt is not None:
+                evt.set()
+        return job
+
+    def _emit_state(self, job: Job, old: JobState | None, reason: str) -> None:
+        self.bus.publish("job.state", {"job_id": job.id, "name": job.name,
+                                       "old": None if old is None else old.value,
+                                       "new": job.state.value, "reason": reason})
+
+    def _progress(self, act: Active, now: float) -> dict[str, Any]:
+        st = act.streamer
+        total = st.program.total
+        ratio = st.acked / total if total else 1.0
+        elapsed = act.elapsed(now)
+        return {"job_id": act.job.id, "acked": st.acked, "total": total,
+                "progress": ratio, "subpart": st.subpart, "layer": st.layer,
+                "elapsed_s": elapsed, "eta_s": eta(act.program.estimate.get("time_s"),
+                                                   ratio, elapsed, act.streamer.start / total
+                                                   if total else 0.0),
+                "filament_mm": st.modal.extruded, "state": st.state,
+                "a": st.modal.position["A"], "c": st.modal.position["C"]}
+
+    def job_dict(self, job: Job) -> dict[str, Any]:
+        d = job.to_dict()
+        act = self.active
+        if act is not None and act.job.id == job.id:
+            live = self._progress(act, time.monotonic())
+            d.update(acked_lines=live["acked"], progress=live["progress"],
+                     subpart=live["subpart"], layer=live["layer"], eta_s=live["eta_s"],
+                     elapsed_s=live["elapsed_s"], filament_mm=live["filament_mm"])
+        return d
+
+    def status(self) -> dict[str, Any]:
+        act = self.active
+        current = None
+        if act is not None:
+            now = time.monotonic()
+            p = self._progress(act, now)
+            job = self.store.get(act.job.id)
+            current = {"info": {"id": str(job.id), "name": job.name}, "id": job.id,
+                       "state": job.state.value, "progress": p["progress"],
+                       "acked": p["acked"], "total": p["total"],
+                       "subpart": p["subpart"], "subparts_total": len(act.program.subparts),
+                       "layer": p["layer"], "layers_total": len(act.program.layers),
+                       "elapsed_s": p["elapsed_s"], "remaining_s": p["eta_s"],
+                       "filament_mm": p["filament_mm"], "a": p["a"], "c": p["c"],
+                       "pause_reason": act.streamer.pause_reason}
+        return {"queue_length": self.store.queue_length(), "counts": self.store.counts(),
+                "finished": dict(self.finished), "transitions": dict(self.transitions),
+                "current": current, "recovered": list(self.recovered)}
+
+
+def eta(estimate_s: float | None, ratio: float, elapsed: float, start_ratio: float
+        ) -> float | None:
+    """Remaining seconds: the slicer's estimate scaled by the measured/estimated rate."""
+    done = ratio - start_ratio
+    if ratio >= 1.0:
+        return 0.0
+    if estimate_s is None or estimate_s <= 0:
+        return elapsed * (1 - ratio) / done if done > 0.01 else None
+    remaining = estimate_s * (1 - ratio)
+    if done <= 0.01 or elapsed <= 0:
+        return remaining
+    factor = elapsed / (estimate_s * done)
+    return remaining * factor
+
+
+def _parse_upload(data: bytes, name: str) -> Program:
+    text = check_gcode(data, name)
+    try:
+        program = parse_program(text)
+    except ProgramError as exc:
+        raise SpoolError(f"{name}: {exc}") from None
+    if program.total == 0:
+        raise SpoolError(f"{name}: G-code has no commands")
+    return program

@@ -1,0 +1,150 @@
+"""Slicing in a separate process, so the event loop and the serial stream never stall.
+
+One worker process (a :class:`~concurrent.futures.ProcessPoolExecutor`, spawned, so it shares
+nothing with the daemon's threads) imports the slicer; the daemon itself never imports numpy
+or trimesh. Results are cached on disk by ``sha256(STL) + sha256(profile)``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import json
+import logging
+import multiprocessing
+import os
+import time
+from collections.abc import Mapping
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from hostd.stats import SLICE_BOUNDS, Buckets
+
+log = logging.getLogger(__name__)
+
+PROFILE_SECTIONS = ("machine", "printhead", "process", "decompose")
+"""Config sections that change the sliced output (and so the cache key)."""
+
+
+class SliceError(Exception):
+    """The model cannot be sliced (corrupt STL, too large, slicer failure)."""
+
+
+@dataclass(frozen=True)
+class SliceOutcome:
+    gcode_path: Path
+    cache_hit: bool
+    duration_s: float
+    info: dict[str, Any]
+
+
+def profile_of(values: Mapping[str, Any]) -> dict[str, Any]:
+    """The slicing-relevant part of a config's dotted values."""
+    return {k: v for k, v in sorted(values.items()) if k.split(".", 1)[0] in PROFILE_SECTIONS}
+
+
+def cache_key(stl_sha: str, profile: Mapping[str, Any]) -> str:
+    blob = json.dumps(profile, sort_keys=True, default=list).encode()
+    return f"{stl_sha}-{hashlib.sha256(blob).hexdigest()[:32]}"
+
+
+def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str) -> dict[str, Any]:
+    """Runs in the worker process: slice ``stl_path`` with config ``values`` to ``out_path``."""
+    from hostd.config.loader import Config
+
+    try:
+        from slicer.pipeline import slice_model
+    except ImportError as exc:
+        raise SliceError(f"the slicing pipeline is not available: {exc}") from None
+    cfg = Config(values, "<daemon>")
+    tmp = f"{out_path}.{os.getpid()}.tmp"
+    try:
+        result = slice_model(stl_path, cfg, tmp)
+    except Exception as exc:  # the slicer's own errors, reported as one line to the operator
+        Path(tmp).unlink(missing_ok=True)
+        raise SliceError(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+    os.replace(tmp, out_path)
+    return _summary(result)
+
+
+def _summary(result: Any) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for key in ("subparts", "layers", "transitions", "filament_mm", "time_s", "lines"):
+        value = getattr(result, key, None)
+        if isinstance(value, (int, float)):
+            out[key] = value
+        elif isinstance(value, (list, tuple)):
+            out[key] = len(value)
+    return out
+
+
+class SlicingWorker:
+    """Slices STL files in a child process, with a result cache.
+
+    Parameters
+    ----------
+    cache_dir
+        Where sliced G-code is kept, named by cache key.
+    values
+        The daemon's config values (the profile part keys the cache).
+    """
+
+    def __init__(self, cache_dir: str | Path, values: Mapping[str, Any]) -> None:
+        self.cache_dir = Path(cache_dir)
+        self.cache_dir.mkdir(parents=True, exist_ok=True)
+        self.values = dict(values)
+        self.profile = profile_of(self.values)
+        self._pool: ProcessPoolExecutor | None = None
+        self.durations = Buckets(SLICE_BOUNDS)
+        self.last_duration_s: float | None = None
+        self.cache_hits = 0
+        self.failures = 0
+        self.active = 0
+
+    def _executor(self) -> ProcessPoolExecutor:
+        if self._pool is None:
+            ctx = multiprocessing.get_context("spawn")
+            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx)
+        return self._pool
+
+    async def slice(self, stl_path: Path, stl_sha: str) -> SliceOutcome:
+        key = cache_key(stl_sha, self.profile)
+        out = self.cache_dir / f"{key}.gcode"
+        meta = self.cache_dir / f"{key}.json"
+        if out.exists() and meta.exists():
+            self.cache_hits += 1
+            info = json.loads(await asyncio.to_thread(meta.read_text))
+            return SliceOutcome(out, True, 0.0, info)
+        started = time.monotonic()
+        self.active += 1
+        loop = asyncio.get_running_loop()
+        try:
+            info = await loop.run_in_executor(self._executor(), slice_in_worker,
+                                              str(stl_path), self.values, str(out))
+        except BrokenProcessPool:
+            self._pool = None
+            self.failures += 1
+            raise SliceError("the slicing worker died (out of memory?)") from None
+        except SliceError:
+            self.failures += 1
+            raise
+        finally:
+            self.active -= 1
+        duration = time.monotonic() - started
+        self.durations.observe(duration)
+        self.last_duration_s = duration
+        await asyncio.to_thread(meta.write_text, json.dumps(info))
+        return SliceOutcome(out, False, duration, info)
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False, cancel_futures=True)
+            self._pool = None
+
+    def status(self) -> dict[str, Any]:
+        return {"active": self.active, "durations": self.durations.snapshot(),
+                "last_duration_s": self.last_duration_s, "cache_hits": self.cache_hits,
+                "failures": self.failures, "worker_started": self._pool is not None}
