@@ -208,7 +208,9 @@ def _cut_all(mesh: trimesh.Trimesh, part: Partition, groups: Groups,
     face_group = groups.region_group[part.labels]
     tree = cKDTree(part.mesh.triangles_center)
     pieces: dict[int, trimesh.Trimesh] = {0: mesh}
-    subparts: dict[int, Subpart] = {0: Subpart(0, None, mesh, None, 0.0, UP)}
+    on_base = (mesh.face_normals[:, 2] < -0.999) & (np.abs(mesh.triangles_center[:, 2]) < 1e-3)
+    base_area = float(mesh.area_faces[on_base].sum())
+    subparts: dict[int, Subpart] = {0: Subpart(0, None, mesh, None, base_area, UP)}
     rng = np.random.default_rng(settings.seed)
     for g in groups.order[1:]:
         pg = groups.parent[g]

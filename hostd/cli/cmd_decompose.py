@@ -1,0 +1,99 @@
+"""``hostctl decompose MODEL.stl -o DIR``: offline model decomposition (no daemon)."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hostd.cli.errors import EXIT_FAILED, CliError
+from hostd.config import Config, ConfigError, load
+from hostd.config.paths import DEFAULT_CONFIG
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``decompose`` verb."""
+    p = subparsers.add_parser(
+        "decompose", help="split an STL into support-free sub-parts (offline)",
+        description="Decompose MODEL.stl into sub-parts printable along their own directions; "
+                    "writes decomposition.json, part_<k>.stl and preview.png into DIR.")
+    p.add_argument("model", help="ASCII or binary STL")
+    p.add_argument("-o", "--output", required=True, help="output directory")
+    p.add_argument("--parts", type=int, default=None, help="coarse K (default: config; 0 auto)")
+    p.add_argument("--root", type=int, default=None, help="coarse region of the root")
+    p.add_argument("--seed", type=int, default=None, help="seed (default: config)")
+    p.add_argument("--config", default=str(DEFAULT_CONFIG), help="config file")
+    p.add_argument("--no-preview", action="store_true", help="skip preview.png")
+    p.set_defaults(func=run)
+
+
+def _settings(cfg: Config, args: argparse.Namespace) -> Any:
+    from slicer.decompose import DecomposeSettings
+    from slicer.planes import SearchSettings
+
+    search = SearchSettings(offset_max=cfg["decompose.plane_offset_max"],
+                            angle_max=cfg["decompose.plane_angle_max"],
+                            area_growth_max=cfg["decompose.area_growth_max"],
+                            max_iterations=cfg["decompose.max_iterations"])
+    parts = cfg["decompose.parts"] if args.parts is None else args.parts
+    seed = cfg["decompose.seed"] if args.seed is None else args.seed
+    if parts < 0 or seed < 0:
+        raise CliError("--parts and --seed must be >= 0")
+    return DecomposeSettings(parts=parts, root=args.root, seed=seed, search=search,
+                             nozzle_diameter=cfg["machine.nozzle_diameter"])
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the decomposition and print a short table."""
+    from kinematics.machine import MachineGeometry
+    from slicer.decompose import DecompositionError, decompose, write_decomposition
+    from slicer.mesh_io import MeshError, load_mesh
+    from slicer.printhead import Printhead, PrintheadError
+
+    try:
+        cfg = load(args.config)
+    except ConfigError as exc:
+        raise CliError(str(exc)) from None
+    settings = _settings(cfg, args)
+    spans = [cfg[f"machine.{a}_range"] for a in "xyz"]
+    build_volume = np.array([hi - lo for lo, hi in spans], dtype=float)
+    machine = MachineGeometry(tuple(cfg["machine.table_origin"]), tuple(cfg["machine.a_pivot"]),
+                              tuple(cfg["machine.a_limits"]), cfg["machine.c_limits"])
+    try:
+        head = Printhead.from_records(cfg["printhead.segments"])
+    except PrintheadError as exc:
+        raise CliError(f"{cfg.source}: printhead.segments: {exc}") from None
+    t0 = time.perf_counter()
+    try:
+        mesh, placement = load_mesh(args.model, build_volume, settings.nozzle_diameter)
+        dec = decompose(mesh, settings, machine, head, build_volume, placement.matrix)
+    except MeshError as exc:
+        raise CliError(str(exc)) from None
+    except DecompositionError as exc:
+        raise CliError(f"{args.model}: {exc}", EXIT_FAILED) from None
+    out = Path(args.output)
+    try:
+        write_decomposition(dec, out)
+        if not args.no_preview:
+            from slicer.preview_decomposition import render_preview
+            render_preview(dec, out / "preview.png")
+    except OSError as exc:
+        raise CliError(f"{out}: cannot write: {exc.strerror or exc}") from None
+    _table(dec, time.perf_counter() - t0)
+    return 0
+
+
+def _table(dec: Any, seconds: float) -> None:
+    print(f"{'part':>4} {'parent':>6} {'volume mm³':>11} {'base mm²':>9} "
+          f"{'direction':>22} {'iter':>5}")
+    for s in dec.subparts:
+        d = "[" + ", ".join(f"{x:+.2f}" for x in s.build_direction) + "]"
+        parent = "-" if s.parent is None else str(s.parent)
+        print(f"{s.index:>4} {parent:>6} {s.volume:>11.1f} {s.base_area:>9.1f} {d:>22} "
+              f"{s.iterations:>5}")
+    total = sum(s.volume for s in dec.subparts)
+    print(f"{len(dec.subparts)} sub-parts, {total:.1f} of {dec.volume:.1f} mm³, "
+          f"k={dec.k} ({dec.regions} regions), order {dec.order}, {seconds:.2f} s")
