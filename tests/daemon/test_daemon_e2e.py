@@ -1,0 +1,218 @@
+"""End to end: hostd as a subprocess on the built-in emulator, driven over the control socket."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import os
+import signal
+import stat
+
+import pytest
+from conftest import RpcCallError, executed, file_commands, make_gcode
+
+pytestmark = pytest.mark.asyncio
+
+
+async def test_gcode_job_completes_every_line_once_in_order(daemon_factory):
+    d = daemon_factory()
+    await d.start()
+    assert stat.S_IMODE(os.stat(d.socket).st_mode) == 0o660
+    text = make_gcode(subparts=3, layers=2, per_layer=30)
+    async with asyncio.timeout(60):
+        c = await d.rpc()
+        await c.call("events.subscribe")
+        job = await c.submit_text("pipe3.gcode", text)
+        assert job["state"] == "ready" and job["total_lines"] == len(file_commands(text))
+        await c.until_state(job["id"], "completed", "failed")
+        got = await c.call("job.get", id=job["id"])
+        assert got["state"] == "completed" and got["acked_lines"] == got["total_lines"]
+        assert [cp["subpart"] for cp in got["checkpoints"]] == [1, 2]
+        assert [(cp["a"], cp["c"]) for cp in got["checkpoints"]] == [(30.0, 120.0),
+                                                                     (60.0, 240.0)]
+        log = (await c.call("sim.log"))["commands"]
+        ran = [cmd for cmd in executed(log) if cmd not in ("M400", "M114")]
+        assert ran == file_commands(text)
+        # each transition ran as a transaction: M400 before, M400 + M114 after the block
+        cmds = executed(log)
+        for a, cc in (("30", "120"), ("60", "240")):
+            i = cmds.index(f"G0 A{a} C{cc} F3000")
+            assert cmds[i - 2:i] == ["M400", "G0 Z80 F3000"]
+            assert cmds[i + 2:i + 4] == ["M400", "M114"]
+        status = await c.call("printer.status")
+        assert status["jobs"]["finished"]["completed"] == 1
+        assert status["jobs"]["transitions"] == {"total": 2, "failed": 0}
+        await c.close()
+    assert await d.stop() == 0
+    assert not d.socket.exists()
+
+
+async def test_pause_resume_then_cancel_mid_print(daemon_factory):
+    d = daemon_factory()
+    await d.start()
+    text = make_gcode(subparts=1, layers=20, per_layer=200)
+    async with asyncio.timeout(90):
+        c = await d.rpc()
+        await c.call("events.subscribe")
+        job = await c.submit_text("long.gcode", text)
+        await c.until(lambda e: e["event"] == "job.progress" and e["progress"] > 0.1)
+        paused = await c.call("job.pause", id=job["id"])
+        assert paused["state"] == "paused"
+        n = paused["acked_lines"]
+        assert 0 < n < paused["total_lines"]
+        got = await c.call("job.get", id=job["id"])
+        assert got["modal"]["absolute"] is True and got["modal"]["e_absolute"] is False
+        assert got["modal"]["hotend"] == 210.0
+        # raw G-code is accepted while paused, refused (except the safe set) while printing
+        await c.call("printer.gcode", script="M114")
+        await c.call("job.resume", id=job["id"])
+        await c.until(lambda e: e["event"] == "job.progress" and e["acked"] > n + 100)
+        with pytest.raises(RpcCallError) as err:
+            await c.call("printer.gcode", script="G28")
+        assert err.value.code == -32004 and "refused while printing" in err.value.message
+        assert (await c.call("printer.gcode", script="M105"))["commands"] == ["M105"]
+        cancelled = await c.call("job.cancel", id=job["id"])
+        assert cancelled["state"] == "cancelled"
+        cmds = executed((await c.call("sim.log"))["commands"])
+        assert cmds[-6:] == ["M104 S0", "M140 S0", "M107", cmds[-3], "G0 A0 C0 F3000", "M84"]
+        # pause: retract and lift along Z, no rotation
+        k = cmds.index("G1 E-1.0000 F2100")
+        assert cmds[k + 1:k + 3] == ["G90", cmds[k + 2]] and cmds[k + 2].startswith("G1 Z")
+        assert not any(x.startswith("G0 A") for x in cmds[k - 2:k + 4])
+        await c.close()
+    await d.stop()
+
+
+async def test_two_jobs_run_in_submission_order(daemon_factory):
+    d = daemon_factory()
+    await d.start()
+    a = make_gcode(subparts=1, layers=2, per_layer=50).replace("X1", "X3")
+    b = make_gcode(subparts=1, layers=2, per_layer=50)
+    async with asyncio.timeout(60):
+        c = await d.rpc()
+        await c.call("events.subscribe", events=["job.state"])
+        ja = await c.submit_text("a.gcode", a)
+        jb = await c.submit_text("b.gcode", b)
+        order = []
+        while len(order) < 2:
+            ev = await c.until(lambda e: e["new"] == "completed")
+            order.append(ev["job_id"])
+        assert order == [ja["id"], jb["id"]]
+        ga, gb = [await c.call("job.get", id=j["id"]) for j in (ja, jb)]
+        assert ga["finished_at"] <= gb["started_at"]
+        ran = [x for x in executed((await c.call("sim.log"))["commands"])
+               if x not in ("M400", "M114")]
+        assert ran == file_commands(a) + file_commands(b)
+        await c.close()
+    await d.stop()
+
+
+async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
+    d = daemon_factory(daemon__max_upload_bytes=200_000)
+    await d.start()
+    text = make_gcode(subparts=1, layers=10, per_layer=200)
+    async with asyncio.timeout(60):
+        c = await d.rpc()
+        await c.call("events.subscribe", events=["job.state", "job.progress"])
+        job = await c.submit_text("long.gcode", text)
+        await c.until(lambda e: e["event"] == "job.progress" and e["progress"] > 0.05)
+        bad = {
+            "corrupt.stl": (os.urandom(1000), "corrupt binary STL"),
+            "empty.stl": (b"", "empty upload"),
+            "big.gcode": (b"G1 X1\n" * 40_000, "exceeds the limit"),
+            "binary.gcode": (b"\xff\xfe\x00G1", "not UTF-8"),
+            "part.obj": (b"v 1 2 3", "cannot tell the kind"),
+        }
+        for name, (data, reason) in bad.items():
+            with pytest.raises(RpcCallError) as err:
+                await c.call("job.submit", name=name, data=base64.b64encode(data).decode())
+            assert err.value.code == -32003 and reason in err.value.message, name
+        with pytest.raises(RpcCallError) as err:
+            await c.call("job.submit", name="x.gcode", data="***")
+        assert err.value.code == -32602
+        await c.until_state(job["id"], "completed")
+        jobs = (await c.call("job.list"))["jobs"]
+        assert [j["id"] for j in jobs] == [job["id"]]
+        await c.close()
+    await d.stop()
+
+
+async def test_fifty_subscribers_all_see_the_job_complete(daemon_factory):
+    d = daemon_factory()
+    await d.start()
+    async with asyncio.timeout(60):
+        clients = [await d.rpc() for _ in range(50)]
+        for c in clients:
+            await c.call("events.subscribe")
+        status = await clients[0].call("printer.status")
+        assert status["control"]["subscribed"] == 50
+        job = await clients[0].submit_text("j.gcode", make_gcode(1, 3, 100))
+        for c in clients:
+            await c.until_state(job["id"], "completed")
+        for c in clients:
+            await c.close()
+    await d.stop()
+
+
+async def test_sigkill_mid_print_then_resume_from_checkpoint(daemon_factory):
+    d = daemon_factory()
+    await d.start()
+    text = make_gcode(subparts=3, layers=8, per_layer=150)
+    cmds = file_commands(text)
+    async with asyncio.timeout(90):
+        c = await d.rpc()
+        await c.call("events.subscribe")
+        job = await c.submit_text("pipe3.gcode", text)
+        await c.until(lambda e: e["event"] == "subpart_started" and e["subpart"] == 1)
+        await c.until(lambda e: e["event"] == "job.progress" and e["subpart"] == 1
+                      and e["layer"] >= 2)
+        os.kill(d.proc.pid, signal.SIGKILL)
+        assert await d.stop() == -signal.SIGKILL
+        await c.close()
+
+        await d.start()
+        c = await d.rpc()
+        got = await c.call("job.get", id=job["id"])
+        assert got["state"] == "interrupted"
+        assert got["acked_lines"] > 0 and f"line {got['acked_lines']}" in got["reason"]
+        assert got["subpart"] == 1 and got["layer"] >= 2
+        assert got["checkpoints"][-1]["subpart"] == 1
+        assert got["modal"]["hotend"] == 210.0
+        await c.call("events.subscribe")
+        await c.call("job.resume", id=job["id"], **{"from": "checkpoint"})
+        await c.until_state(job["id"], "completed", "failed", "paused")
+        log = executed((await c.call("sim.log"))["commands"])
+        cp_line = got["checkpoints"][-1]["line"]
+        first = log.index(cmds[cp_line])
+        restart = log[:first]
+        assert restart[0] == "G28"
+        assert "M109 S210" in restart and "M190 S60" in restart
+        rot = restart.index("G0 A30.0000 C120.0000 F5400")
+        assert any(x.startswith("G0 Z") for x in restart[:rot])
+        assert [x for x in log[first:] if x not in ("M400", "M114")] == cmds[cp_line:]
+        final = await c.call("job.get", id=job["id"])
+        assert final["state"] == "completed"
+        await c.close()
+    await d.stop()
+
+
+async def test_lost_step_pauses_at_the_right_transition(daemon_factory):
+    d = daemon_factory(sim__lost_step_axis="C", sim__lost_step_degrees=2.0,
+                       sim__lost_step_at_move=2)
+    await d.start()
+    text = make_gcode(subparts=3, layers=2, per_layer=20)
+    async with asyncio.timeout(60):
+        c = await d.rpc()
+        await c.call("events.subscribe")
+        job = await c.submit_text("pipe3.gcode", text)
+        failed = await c.until(lambda e: e["event"] == "transition_failed")
+        assert failed["subpart"] == 2 and abs(failed["measured"]["C"] - 242.0) < 0.01
+        ev = await c.until_state(job["id"], "paused")
+        assert "transition to sub-part 2 failed" in ev["reason"]
+        status = await c.call("printer.status")
+        assert status["jobs"]["transitions"] == {"total": 2, "failed": 1}
+        got = await c.call("job.get", id=job["id"])
+        assert [cp["subpart"] for cp in got["checkpoints"]] == [1]
+        await c.call("job.cancel", id=job["id"])
+        await c.close()
+    await d.stop()
