@@ -1,0 +1,102 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from slicer import samples
+from slicer.mesh_io import MeshError, load_mesh
+
+
+@pytest.fixture(scope="module")
+def pipe_bytes(tmp_path_factory):
+    path = tmp_path_factory.mktemp("stl") / "pipe2.stl"
+    samples.pipe2().export(path)
+    return path.read_bytes()
+
+
+def _write(tmp_path, name, data):
+    path = tmp_path / name
+    path.write_bytes(data)
+    return path
+
+
+def _refused(path, **kw):
+    with pytest.raises(MeshError) as exc:
+        load_mesh(path, **kw)
+    msg = str(exc.value)
+    assert "\n" not in msg and str(path) in msg
+    return msg
+
+
+def test_binary_and_ascii_load_to_the_same_placed_solid(tmp_path, pipe_bytes):
+    binary, _ = load_mesh(_write(tmp_path, "b.stl", pipe_bytes))
+    ascii_path = tmp_path / "a.stl"
+    samples.pipe2().export(ascii_path, file_type="stl_ascii")
+    text, _ = load_mesh(ascii_path)
+    for mesh in (binary, text):
+        assert mesh.is_watertight
+        assert mesh.bounds[0, 2] == pytest.approx(0.0, abs=1e-6)
+    assert binary.volume == pytest.approx(text.volume, rel=1e-6)
+
+
+def test_placement_finds_the_flat_base_of_a_tilted_part(tmp_path):
+    mesh = samples.pipe2()
+    rot = trimesh.transformations.rotation_matrix(1.1, [1.0, 0.3, 0.0])
+    rot[:3, 3] = (40.0, -7.0, 12.0)
+    mesh.apply_transform(rot)
+    path = tmp_path / "tilted.stl"
+    mesh.export(path)
+    placed, placement = load_mesh(path)
+    assert placement.base_area == pytest.approx(np.pi * 16.0**2, rel=0.01)
+    assert placed.bounds[0, 2] == pytest.approx(0.0, abs=1e-6)
+    down = placed.face_normals[:, 2] < -0.999
+    on_z0 = np.abs(placed.triangles_center[:, 2]) < 1e-4
+    base = placed.triangles_center[down & on_z0]
+    w = placed.area_faces[down & on_z0]
+    assert np.average(base[:, :2], axis=0, weights=w) == pytest.approx([0.0, 0.0], abs=1e-6)
+    back = trimesh.transform_points(mesh.vertices, placement.matrix)
+    assert np.allclose(np.sort(back, axis=0), np.sort(placed.vertices, axis=0), atol=1e-6)
+
+
+def test_empty_file(tmp_path):
+    assert "empty" in _refused(_write(tmp_path, "e.stl", b""))
+
+
+def test_truncated_binary(tmp_path, pipe_bytes):
+    assert "truncated" in _refused(_write(tmp_path, "t.stl", pipe_bytes[:len(pipe_bytes) // 2]))
+
+
+def test_header_only(tmp_path, pipe_bytes):
+    assert "truncated" in _refused(_write(tmp_path, "h.stl", pipe_bytes[:84]))
+
+
+def test_nan_vertex(tmp_path):
+    text = samples.cylinder().export(file_type="stl_ascii")
+    first = text.index("vertex") + len("vertex")
+    end = text.index("\n", first)
+    bad = text[:first] + " nan 0 0" + text[end:]
+    assert "NaN" in _refused(_write(tmp_path, "n.stl", bad.encode()))
+
+
+def test_not_watertight(tmp_path):
+    mesh = samples.pipe2()
+    open_mesh = trimesh.Trimesh(mesh.vertices, mesh.faces[:-5], process=False)
+    path = tmp_path / "open.stl"
+    open_mesh.export(path)
+    assert "watertight" in _refused(path)
+
+
+def test_too_big(tmp_path, pipe_bytes):
+    msg = _refused(_write(tmp_path, "big.stl", pipe_bytes), build_volume=[30.0, 30.0, 30.0])
+    assert "too big" in msg
+
+
+def test_too_small(tmp_path):
+    path = tmp_path / "small.stl"
+    samples.cylinder(0.1, 0.2).export(path)
+    assert "too small" in _refused(path, min_size=0.4)
+
+
+def test_missing_file(tmp_path):
+    assert "cannot read" in _refused(tmp_path / "nope.stl")
