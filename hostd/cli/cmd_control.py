@@ -112,6 +112,9 @@ def _follow(c: Client, job: dict[str, Any], as_json: bool) -> str:
                 return str(data["new"])
         elif event == "job.progress" and not as_json:
             bar.update(data)
+        elif event == "subpart_started" and not as_json:
+            bar.line_break(f"sub-part {data.get('subpart')} started at A {data.get('a')} "
+                           f"C {data.get('c')} (checkpoint)")
         elif event == "transition_failed" and not as_json:
             bar.line_break(f"transition to sub-part {data.get('subpart')} failed: "
                            f"{data.get('reason')}")

@@ -341,10 +341,11 @@ class JobManager:
         now = time.monotonic()
         layer = (st.subpart, st.layer)
         changed = layer != act.last_layer
-        if changed or now - act.last_persist >= PERSIST_INTERVAL or st.acked == st.program.total:
+        last = st.acked == st.program.total
+        if changed or last or now - act.last_persist >= PERSIST_INTERVAL:
             act.last_layer = layer
             self._persist(act)
-        if changed or now - act.last_event >= EVENT_INTERVAL:
+        if changed or last or now - act.last_event >= EVENT_INTERVAL:
             act.last_event = now
             self.bus.publish("job.progress", self._progress(act, now))
 

@@ -9,7 +9,7 @@ import signal
 import stat
 
 import pytest
-from conftest import RpcCallError, executed, file_commands, make_gcode
+from hostd_harness import RpcCallError, executed, file_commands, make_gcode
 
 pytestmark = pytest.mark.asyncio
 

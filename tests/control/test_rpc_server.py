@@ -1,0 +1,156 @@
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import stat
+
+import pytest
+
+from hostd.control.events import EventBus, EventError
+from hostd.control.rpc import Param, Registry, error_for
+from hostd.control.server import ControlServer
+from hostd.jobs.states import JobStateError
+from hostd.jobs.store import JobNotFound
+
+
+def make_registry() -> Registry:
+    reg = Registry()
+
+    async def echo(ctx, text: str, times: int) -> str:
+        return text * times
+
+    async def boom(ctx) -> None:
+        raise RuntimeError("secret detail")
+
+    async def missing(ctx) -> None:
+        raise JobNotFound("no job 7")
+
+    async def sub(ctx) -> str:
+        ctx.subscribe(None)
+        return "ok"
+
+    reg.add("echo", echo, Param("text", "str"), Param("times", "int", required=False,
+                                                      default=1))
+    reg.add("boom", boom)
+    reg.add("missing", missing)
+    reg.add("sub", sub)
+    return reg
+
+
+async def call(reg: Registry, msg: object) -> dict:
+    raw = await reg.dispatch(json.dumps(msg), None)
+    return json.loads(raw) if raw else {}
+
+
+@pytest.mark.asyncio
+async def test_dispatch_results_and_standard_errors():
+    reg = make_registry()
+    async with asyncio.timeout(5):
+        ok = await call(reg, {"jsonrpc": "2.0", "id": 1, "method": "echo",
+                              "params": {"text": "ab", "times": 2}})
+        assert ok == {"jsonrpc": "2.0", "id": 1, "result": "abab"}
+        assert (await call(reg, {"jsonrpc": "2.0", "id": 2, "method": "echo",
+                                 "params": ["x"]}))["result"] == "x"
+        codes = {
+            "nomethod": {"jsonrpc": "2.0", "id": 3, "method": "nope"},
+            "badtype": {"jsonrpc": "2.0", "id": 4, "method": "echo", "params": {"text": 5}},
+            "bool": {"jsonrpc": "2.0", "id": 4, "method": "echo",
+                     "params": {"text": "a", "times": True}},
+            "extra": {"jsonrpc": "2.0", "id": 5, "method": "echo",
+                      "params": {"text": "a", "zzz": 1}},
+            "missing": {"jsonrpc": "2.0", "id": 6, "method": "echo", "params": {}},
+            "version": {"jsonrpc": "1.0", "id": 7, "method": "echo"},
+            "internal": {"jsonrpc": "2.0", "id": 8, "method": "boom"},
+            "app": {"jsonrpc": "2.0", "id": 9, "method": "missing"},
+        }
+        want = {"nomethod": -32601, "badtype": -32602, "bool": -32602, "extra": -32602,
+                "missing": -32602, "version": -32600, "internal": -32603, "app": -32001}
+        for key, msg in codes.items():
+            assert (await call(reg, msg))["error"]["code"] == want[key], key
+        internal = await call(reg, codes["internal"])
+        assert "secret" not in internal["error"]["message"]
+        assert (await reg.dispatch(b"{not json", None)) is not None
+        assert json.loads(await reg.dispatch(b"{not json", None))["error"]["code"] == -32700
+        assert json.loads(await reg.dispatch(b"[]", None))["error"]["code"] == -32600
+        # notifications get no answer, even when they fail
+        assert await reg.dispatch(json.dumps({"jsonrpc": "2.0", "method": "boom"}), None) is None
+        batch = json.loads(await reg.dispatch(json.dumps([
+            {"jsonrpc": "2.0", "id": 1, "method": "echo", "params": {"text": "a"}},
+            {"jsonrpc": "2.0", "method": "echo", "params": {"text": "b"}},
+            {"jsonrpc": "2.0", "id": 2, "method": "nope"}]), None))
+        assert [m.get("result") for m in batch] == ["a", None] and len(batch) == 2
+
+
+def test_error_table_is_the_one_place():
+    assert error_for(JobStateError("cannot"))["code"] == -32002
+    assert error_for(EventError("x"))["code"] == -32602
+    assert error_for(KeyError("k"))["code"] == -32603
+
+
+def test_event_bus_isolates_a_failing_handler():
+    bus = EventBus()
+    seen = []
+
+    def bad(name, data):
+        raise ValueError("broken subscriber")
+
+    bus.subscribe(bad)
+    unsub = bus.subscribe(lambda n, d: seen.append((n, d["x"])), ["job.state"])
+    bus.publish("job.state", {"x": 1})
+    bus.publish("job.progress", {"x": 2})
+    unsub()
+    bus.publish("job.state", {"x": 3})
+    assert seen == [("job.state", 1)]
+    assert bus.status()["handler_errors"] == 3
+    with pytest.raises(EventError):
+        bus.subscribe(bad, ["no.such"])
+
+
+@pytest.mark.asyncio
+async def test_server_oversize_abrupt_disconnect_and_push(tmp_path):
+    bus = EventBus()
+    path = tmp_path / "s.sock"
+    server = ControlServer(path, make_registry(), bus, max_message=4096)
+    async with asyncio.timeout(10):
+        await server.start()
+        assert stat.S_IMODE(os.stat(path).st_mode) == 0o660
+        # abrupt disconnect in the middle of a line
+        _, w = await asyncio.open_unix_connection(str(path))
+        w.write(b'{"jsonrpc": "2.0", "id": 1, "meth')
+        await w.drain()
+        w.close()
+        # oversized message: an error, then a clean close
+        r, w = await asyncio.open_unix_connection(str(path))
+        w.write(b"x" * 10000 + b"\n")
+        await w.drain()
+        reply = json.loads(await r.readline())
+        assert reply["error"]["code"] == -32007
+        assert await r.readline() == b""
+        w.close()
+        # a subscriber gets pushed events; others keep working
+        r, w = await asyncio.open_unix_connection(str(path))
+        w.write(b'{"jsonrpc": "2.0", "id": 1, "method": "sub"}\n')
+        await w.drain()
+        assert json.loads(await r.readline())["result"] == "ok"
+        bus.publish("job.state", {"job_id": 1, "new": "printing"})
+        note = json.loads(await r.readline())
+        assert note["method"] == "notify_job_state" and note["params"]["new"] == "printing"
+        w.write(b'{"jsonrpc": "2.0", "id": 2, "method": "echo", "params": {"text": "z"}}\n')
+        await w.drain()
+        assert json.loads(await r.readline())["result"] == "z"
+        w.close()
+        await server.close()
+    assert not path.exists()
+
+
+@pytest.mark.asyncio
+async def test_second_server_on_a_live_socket_is_refused(tmp_path):
+    path = tmp_path / "s.sock"
+    bus = EventBus()
+    first = ControlServer(path, make_registry(), bus, 4096)
+    async with asyncio.timeout(5):
+        await first.start()
+        with pytest.raises(Exception, match="another daemon"):
+            await ControlServer(path, make_registry(), bus, 4096).start()
+        await first.close()
