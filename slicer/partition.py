@@ -68,7 +68,12 @@ class Partition:
 
 
 def analysis_mesh(mesh: trimesh.Trimesh, target_faces: int = TARGET_FACES) -> trimesh.Trimesh:
-    """``mesh`` refined so every edge is at most about sqrt(2·area / target_faces)."""
+    """``mesh`` refined so every edge is at most about sqrt(2·area / target_faces).
+
+    Meshes that already have ``target_faces`` faces are used as they are.
+    """
+    if len(mesh.faces) >= target_faces:
+        return mesh
     max_edge = float(np.sqrt(2.0 * mesh.area / target_faces)) * 2.0
     if mesh.edges_unique_length.max() <= max_edge:
         return mesh
@@ -145,21 +150,31 @@ def boundary_lengths(mesh: trimesh.Trimesh, labels: np.ndarray) -> np.ndarray:
 
 def merge_small(mesh: trimesh.Trimesh, labels: np.ndarray,
                 min_share: float = MIN_REGION_SHARE) -> np.ndarray:
-    """Merge regions below ``min_share`` of the area into their longest-boundary neighbour."""
+    """Merge regions below ``min_share`` of the area into their longest-boundary neighbour.
+
+    Each pass merges every small region at once (smallest first, into a neighbour that is not
+    itself being merged away when possible); passes repeat until none is left.
+    """
     labels = labels.copy()
-    while True:
+    for _ in range(64):
         k = int(labels.max()) + 1
         areas = np.bincount(labels, weights=mesh.area_faces, minlength=k)
-        small = np.flatnonzero(areas < min_share * mesh.area)
-        if len(small) == 0 or k == 1:
-            return labels
-        r = small[np.argmin(areas[small])]
-        shared = boundary_lengths(mesh, labels)[r]
-        shared[r] = 0.0
-        if shared.max() <= 0:
-            return labels
-        labels[labels == r] = int(np.argmax(shared))
-        labels = _compact(labels)
+        small = areas < min_share * mesh.area
+        if not small.any() or k == 1:
+            break
+        shared = boundary_lengths(mesh, labels)
+        np.fill_diagonal(shared, 0.0)
+        target = np.arange(k)
+        big_first = np.where(small[None, :], 0.5, 1.0) * shared  # prefer kept neighbours
+        for r in np.flatnonzero(small)[np.argsort(areas[small])]:
+            if shared[r].max() > 0:
+                target[r] = int(np.argmax(big_first[r]))
+        for _ in range(k):  # follow chains r -> t -> ...
+            target = target[target]
+        if np.array_equal(target, np.arange(k)):
+            break
+        labels = _compact(target[labels])
+    return labels
 
 
 def coarse_partition(mesh: trimesh.Trimesh, k: int | None, seed: int) -> Partition:
