@@ -216,3 +216,24 @@ async def test_lost_step_pauses_at_the_right_transition(daemon_factory):
         await c.call("job.cancel", id=job["id"])
         await c.close()
     await d.stop()
+
+
+async def test_sigterm_mid_print_records_interrupted_with_modal_state(daemon_factory):
+    d = daemon_factory()
+    await d.start()
+    text = make_gcode(subparts=1, layers=20, per_layer=200)
+    async with asyncio.timeout(60):
+        c = await d.rpc()
+        await c.call("events.subscribe", events=["job.progress"])
+        job = await c.submit_text("long.gcode", text)
+        await c.until(lambda e: e["progress"] > 0.1)
+        assert await d.stop(signal.SIGTERM) == 0
+        await c.close()
+        await d.start()
+        c = await d.rpc()
+        got = await c.call("job.get", id=job["id"])
+        assert got["state"] == "interrupted" and "SIGTERM" in got["reason"]
+        assert got["acked_lines"] > 0 and got["modal"]["hotend"] == 210.0
+        assert [h["new"] for h in got["history"]][-2:] == ["printing", "interrupted"]
+        await c.close()
+    await d.stop()
