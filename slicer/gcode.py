@@ -1,0 +1,311 @@
+"""G-code writer: a :class:`~slicer.plan.PrintPlan` as joint-space G-code (X Y Z A C, mm/deg).
+
+The file is self-describing (see ``docs/gcode-format.md``): the headers give the kinematics,
+the process, the STL → platform placement and the estimate, and markers delimit sub-parts,
+layers, interface layers and the transitions between sub-parts. Only G0/G1 moves, G90
+absolute axes, M83 relative extrusion.
+
+Extrusion of a segment of length L between vertices of local thickness h0, h1 is
+``E = w · (h0 + h1)/2 · L · flow / (π d² / 4)`` (filament diameter d).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path as FsPath
+
+import numpy as np
+
+from kinematics.linearize import linearize_move
+from kinematics.machine import MachineGeometry
+from kinematics.transform import forward, inverse, table_rotation
+from slicer.estimate import Estimate, MotionLimits, estimate_program
+from slicer.gcode_program import AC_DECIMALS, XYZ_DECIMALS, Program
+from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
+from slicer.printhead import Printhead
+from slicer.settings import ProcessSettings
+from slicer.transitions import obstacle_hull, plan_transition, platform_rim, safe_height_z
+
+RETRACT_MIN_TRAVEL = 2.0  # mm: shorter travels neither retract nor hop
+PLA_DENSITY = 1.24e-3  # g/mm³
+
+
+class GcodeError(ValueError):
+    """A plan or setting the writer cannot turn into G-code."""
+
+
+@dataclass(frozen=True)
+class MachineSetup:
+    """What the writer needs to know about the machine beyond the kinematics."""
+
+    geometry: MachineGeometry = field(default_factory=MachineGeometry)
+    head: Printhead = field(default_factory=Printhead)
+    platform_radius: float = 150.0
+
+
+@dataclass
+class GcodeResult:
+    """The formatted file and what was computed on the way.
+
+    Attributes
+    ----------
+    lines : list of str
+    estimate : Estimate
+    transitions : list of dict
+        One record per sub-part transition: from, to, a, c, x, y, z, safe_z.
+    """
+
+    lines: list[str]
+    estimate: Estimate
+    transitions: list[dict[str, object]]
+
+
+def filament_area(settings: ProcessSettings) -> float:
+    """Cross-section of the filament, mm²."""
+    return math.pi * settings.filament_diameter ** 2 / 4.0
+
+
+def path_extrusion(path: Path, area: float) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (k, 3) in print order (closed paths return to the start) and E per segment.
+
+    Returns
+    -------
+    points : (k, 3) float
+    e : (k - 1,) float
+        mm of filament per segment.
+    """
+    pts = np.asarray(path.points, dtype=float).reshape(-1, 3)
+    h = np.broadcast_to(np.asarray(path.height, dtype=float), (len(pts),))
+    if path.closed and len(pts) > 2:
+        pts = np.vstack([pts, pts[:1]])
+        h = np.concatenate([h, h[:1]])
+    length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    e = path.width * 0.5 * (h[:-1] + h[1:]) * length * path.flow / area
+    return pts, e
+
+
+class _Writer:
+    """Walks the plan in order and fills a :class:`Program`."""
+
+    def __init__(self, plan: PrintPlan, settings: ProcessSettings, machine: MachineSetup):
+        self.plan, self.s, self.m = plan, settings, machine
+        self.g = machine.geometry
+        self.prog = Program()
+        self.retracted = False
+        self.primed = True
+        self.area = filament_area(settings)
+        self.hull = obstacle_hull(_all_points(plan))
+        self.rim = platform_rim(machine.platform_radius)
+        self.transitions: list[dict[str, object]] = []
+
+    # -- low-level moves -------------------------------------------------------------------
+    def retract(self) -> None:
+        if not self.retracted and self.s.retract_length > 0:
+            self.prog.extrude_only(-self.s.retract_length, self.s.retract_speed)
+        self.retracted = True
+
+    def unretract(self) -> None:
+        if not self.primed:
+            self.primed = True
+        elif self.retracted and self.s.retract_length > 0:
+            self.prog.extrude_only(self.s.retract_length, self.s.retract_speed)
+        self.retracted = False
+
+    def travel(self, xyz: np.ndarray) -> None:
+        pose = self.prog.pose.copy()
+        pose[:3] = xyz
+        self.prog.moves(pose[None, :], 0.0, self.s.travel_speed, 0)
+
+    def travel_to(self, target: np.ndarray) -> None:
+        """Travel at the current angles to machine point ``target`` (3,) ready to extrude."""
+        cur = self.prog.pose[:3]
+        dist = float(np.linalg.norm(target - cur))
+        if self.retracted or dist > RETRACT_MIN_TRAVEL:
+            lift = max(cur[2] + (0.0 if self.retracted else self.s.z_hop),
+                       target[2] + self.s.z_hop)
+            self.retract()
+            if cur[2] < lift - 1e-9:
+                self.travel(np.array([cur[0], cur[1], lift]))
+            if not np.allclose(cur[:2], target[:2], atol=1e-9):
+                self.travel(np.array([target[0], target[1], lift]))
+            self.travel(target)
+            self.unretract()
+        elif dist > 0.0:
+            self.travel(target)
+
+    # -- layers ----------------------------------------------------------------------------
+    def reorient(self, layer: Layer, first: np.ndarray) -> None:
+        """Turn the table between two layers of one sub-part along a linearised move."""
+        a0, c0 = float(self.prog.pose[3]), float(self.prog.pose[4])
+        self.retract()
+        lift = self.prog.pose[:3] + np.array([0.0, 0.0, self.s.z_hop])
+        self.travel(lift)
+        p0 = inverse(lift, a0, c0, self.g)
+        u1 = _nozzle_axis(layer.a, layer.c)
+        p1 = first + self.s.z_hop * u1
+        way = linearize_move(p0, p1, a0, c0, layer.a, layer.c, self.g,
+                             self.s.linearize_tolerance)
+        self.prog.moves(way[1:], 0.0, self.s.travel_speed, 0)
+
+    def layer(self, layer: Layer) -> None:
+        self.prog.line(f";HOSTD_LAYER {_json({'subpart': layer.subpart, 'index': layer.index})}")
+        if layer.interface_child is not None:
+            self.prog.line(";HOSTD_INTERFACE " + _json(
+                {"parent": layer.subpart, "child": int(layer.interface_child)}))
+        for path in layer.paths:
+            pts, e = path_extrusion(path, self.area)
+            if len(pts) < 2:
+                continue
+            if not _same_angles(self.prog.pose, layer.a, layer.c):
+                self.reorient(layer, pts[0])
+            mach = forward(pts, layer.a, layer.c, self.g)
+            self.travel_to(mach[0])
+            poses = np.column_stack([mach[1:], np.full(len(e), layer.a),
+                                     np.full(len(e), layer.c)])
+            self.prog.moves(poses, e, path.speed, 1)
+
+    # -- sub-parts -------------------------------------------------------------------------
+    def subpart(self, sp: SubpartPlan, prev: int | None) -> None:
+        first = _first_point(sp)
+        if first is None:
+            return
+        layer0, point = first
+        self.prog.subpart = sp.index
+        parent = None if sp.parent is None else int(sp.parent)
+        self.prog.line(f";HOSTD_SUBPART {_json({'index': sp.index, 'parent': parent})}")
+        self.transition(prev, sp.index, layer0, point)
+        for layer in sp.layers:
+            self.layer(layer)
+
+    def transition(self, prev: int | None, to: int, layer: Layer, point: np.ndarray) -> None:
+        start = None if np.isnan(self.prog.pose).any() else self.prog.pose.copy()
+        if start is None:  # nothing extruded yet: no retract, and no unretract after
+            self.retracted, self.primed = True, False
+        self.retract()
+        tr = plan_transition(start, point, layer.a, layer.c, self.hull, self.rim, self.g,
+                             self.s.safe_height, self.s.z_hop)
+        x, y, z = (round(float(v), XYZ_DECIMALS) for v in tr.target[:3])
+        a, c = (round(float(v), AC_DECIMALS) for v in tr.target[3:])
+        record = {"from": prev, "to": to, "a": a, "c": c, "x": x, "y": y, "z": z,
+                  "safe_z": round(tr.safe_z, 3)}
+        self.transitions.append(record)
+        self.prog.line(f";HOSTD_TRANSITION {_json(record)}")
+        for pose, rotary in zip(tr.poses, tr.rotary, strict=True):
+            if rotary and _same_angles(self.prog.pose, pose[3], pose[4]):
+                continue
+            feed = self.s.max_rotary_velocity if rotary else self.s.travel_speed
+            self.prog.moves(pose[None, :], 0.0, feed, 0)
+        self.prog.line(";HOSTD_TRANSITION_END")
+
+    def end_safe_z(self) -> float:
+        if np.isnan(self.prog.pose).any():
+            return self.s.safe_height
+        a0, c0 = float(self.prog.pose[3]), float(self.prog.pose[4])
+        z = safe_height_z(self.hull, self.rim, a0, c0, 0.0, 0.0, self.g, self.s.safe_height)
+        return max(z, float(self.prog.pose[2]))
+
+
+def _json(obj: object) -> str:
+    return json.dumps(obj, separators=(", ", ": "))
+
+
+def _nozzle_axis(a: float, c: float) -> np.ndarray:
+    """Machine +Z in the platform frame at table angles (a, c), (3,)."""
+    return table_rotation(a, c).T @ np.array([0.0, 0.0, 1.0])
+
+
+def _same_angles(pose: np.ndarray, a: float, c: float) -> bool:
+    return abs(pose[3] - a) < 1e-9 and abs(pose[4] - c) < 1e-9
+
+
+def _first_point(sp: SubpartPlan) -> tuple[Layer, np.ndarray] | None:
+    for layer in sp.layers:
+        for path in layer.paths:
+            if len(path.points):
+                return layer, np.asarray(path.points, dtype=float).reshape(-1, 3)[0]
+    return None
+
+
+def _all_points(plan: PrintPlan) -> np.ndarray:
+    chunks = [np.asarray(p.points, dtype=float).reshape(-1, 3) for sp in plan.subparts
+              for la in sp.layers for p in la.paths]
+    return np.concatenate(chunks) if chunks else np.zeros((1, 3))
+
+
+def header_lines(settings: ProcessSettings, machine: MachineSetup, placement: np.ndarray,
+                 estimate: Estimate) -> list[str]:
+    """The four fixed header lines (KINEMATICS, PROCESS, PLACEMENT, ESTIMATE)."""
+    kin = dict(machine.geometry.header())
+    kin["platform_radius"] = machine.platform_radius
+    kin["printhead"] = [list(seg) for seg in machine.head.segments]
+    proc = dict(settings.header())
+    proc.update(perimeters=settings.perimeters, infill_density=settings.infill_density)
+    matrix = [[float(v) for v in row] for row in np.asarray(placement, dtype=float)]
+    return [f";HOSTD_KINEMATICS {_json(kin)}", f";HOSTD_PROCESS {_json(proc)}",
+            f";HOSTD_PLACEMENT {_json({'matrix': matrix})}",
+            f";HOSTD_ESTIMATE {_json(estimate.header())}"]
+
+
+def _custom(template: str, settings: ProcessSettings, **extra: float) -> str:
+    values = {**asdict(settings), **extra}
+    try:
+        return template.format_map(values)
+    except (KeyError, IndexError, ValueError) as exc:
+        raise GcodeError(f"start/end G-code: bad placeholder {exc} "
+                         f"(known: {', '.join(sorted(values))})") from None
+
+
+def build_program(plan: PrintPlan, settings: ProcessSettings,
+                  machine: MachineSetup | None = None) -> tuple[Program, list[dict[str, object]],
+                                                                 float]:
+    """Fill a :class:`Program` with the whole print (without headers).
+
+    Returns
+    -------
+    program, transition records, end safe Z
+    """
+    machine = machine or MachineSetup()
+    w = _Writer(plan, settings, machine)
+    w.prog.line("M83\nG90")
+    w.prog.line(_custom(settings.start_gcode, settings, safe_z=0.0))
+    w.prog.line(f"M83\nG90\nM106 S{int(settings.fan_speed)}")
+    prev: int | None = None
+    for sp in plan.subparts:
+        w.subpart(sp, prev)
+        prev = sp.index
+    w.retract()
+    safe_z = w.end_safe_z()
+    w.prog.line(_custom(settings.end_gcode, settings, safe_z=round(safe_z, 3)))
+    return w.prog, w.transitions, safe_z
+
+
+def generate(plan: PrintPlan, settings: ProcessSettings,
+             machine: MachineSetup | None = None) -> GcodeResult:
+    """The whole file: headers, start G-code, sub-parts with transitions, end G-code."""
+    machine = machine or MachineSetup()
+    prog, transitions, _ = build_program(plan, settings, machine)
+    limits = MotionLimits.from_settings(settings)
+    estimate = estimate_program(prog.blocks(), limits, filament_area(settings), PLA_DENSITY)
+    lines = header_lines(settings, machine, plan.placement, estimate)
+    lines.extend(prog.lines())
+    return GcodeResult(lines, estimate, transitions)
+
+
+def gcode_lines(plan: PrintPlan, settings: ProcessSettings,
+                machine: MachineSetup | None = None) -> list[str]:
+    """The file as a list of lines (no newlines)."""
+    return generate(plan, settings, machine).lines
+
+
+def write_gcode(path: str | FsPath, lines: Iterable[str]) -> None:
+    """Write ``lines`` to ``path`` with ``\\n`` endings."""
+    text = "\n".join(lines)
+    FsPath(path).write_text(text + "\n", encoding="ascii")
+
+
+__all__: Sequence[str] = ("GcodeError", "GcodeResult", "MachineSetup", "build_program",
+                          "filament_area", "gcode_lines", "generate", "header_lines",
+                          "path_extrusion", "write_gcode")

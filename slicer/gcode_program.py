@@ -1,0 +1,119 @@
+"""A G-code program under construction: comment lines interleaved with numeric move blocks.
+
+The writer (:mod:`slicer.gcode`) emits whole blocks of joint-space moves at once (numpy rows),
+so estimating and formatting stay vectorised. Every move row holds the pose it ends at and
+the filament it pushes; the program formats them as ``G0``/``G1`` lines with absolute X Y Z A C
+(G90) and relative E (M83), writing an axis only when its printed value changes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+
+# columns of a move row
+X, Y, Z, A, C, E, F, G, SUB = range(9)
+NCOL = 9
+XYZ_DECIMALS = 3
+AC_DECIMALS = 4
+E_DECIMALS = 5
+
+
+@dataclass
+class Program:
+    """Lines and move blocks in file order.
+
+    Attributes
+    ----------
+    items : list of str or (k, 9) float array
+        Comment/raw lines, or blocks of move rows ``[X, Y, Z, A, C, E, F, G, SUB]`` with the end
+        pose (mm, degrees), relative E (mm of filament), feed (mm/s, degrees/s for rotary-only
+        moves), G (0 travel, 1 extrude) and the sub-part the move belongs to.
+    pose : (5,) float
+        Joint pose after the last move (NaN for axes never set).
+    """
+
+    items: list[str | np.ndarray] = field(default_factory=list)
+    pose: np.ndarray = field(default_factory=lambda: np.full(5, np.nan))
+    subpart: int = -1
+
+    def line(self, text: str) -> None:
+        """Append raw lines (comments, M-codes); ``text`` may hold several."""
+        self.items.extend(text.splitlines())
+
+    def moves(self, poses: np.ndarray, e: np.ndarray | float, feed: np.ndarray | float,
+              g: int) -> None:
+        """Append moves ending at ``poses`` (k, 5) with filament ``e`` and feed ``feed``."""
+        p = np.asarray(poses, dtype=float).reshape(-1, 5)
+        if len(p) == 0:
+            return
+        block = np.empty((len(p), NCOL))
+        block[:, :5] = p
+        block[:, E] = e
+        block[:, F] = feed
+        block[:, G] = g
+        block[:, SUB] = self.subpart
+        self.items.append(block)
+        self.pose = p[-1].copy()
+
+    def extrude_only(self, e: float, feed: float) -> None:
+        """A retract (e < 0) or unretract (e > 0) without moving the axes."""
+        self.moves(self.pose[None, :], e, feed, 1)
+
+    def blocks(self) -> np.ndarray:
+        """All move rows in order, (n, 9)."""
+        arrays = [b for b in self.items if isinstance(b, np.ndarray)]
+        return np.concatenate(arrays) if arrays else np.empty((0, NCOL))
+
+    def start_poses(self) -> np.ndarray:
+        """The pose each move starts from (NaN where unknown), (n, 5)."""
+        rows = self.blocks()
+        start = np.full((len(rows), 5), np.nan)
+        if len(rows):
+            start[1:] = rows[:-1, :5]
+        return start
+
+    def lines(self) -> Iterator[str]:
+        """The program as G-code lines (no trailing newlines)."""
+        prev = np.full(7, np.nan)  # printed X Y Z A C and feed, last G
+        for item in self.items:
+            if isinstance(item, str):
+                yield item
+            else:
+                yield from _format_block(item, prev)
+
+
+def _rounded(block: np.ndarray) -> np.ndarray:
+    out = np.empty((len(block), 6))
+    out[:, :3] = np.round(block[:, :3], XYZ_DECIMALS)
+    out[:, 3:5] = np.round(block[:, 3:5], AC_DECIMALS)
+    out[:, 5] = np.round(block[:, F] * 60.0, 0)
+    return out
+
+
+def _format_block(block: np.ndarray, prev: np.ndarray) -> list[str]:
+    """Format rows, writing only axes whose printed value changes; updates ``prev``."""
+    r = _rounded(block)
+    before = np.vstack([prev[None, :6], r[:-1]])
+    changed = ~(r == before) & np.isfinite(r)  # NaN before: written; NaN now: never
+    e = np.round(block[:, E], E_DECIMALS)
+    names = ("X", "Y", "Z", "A", "C")
+    fmts = (XYZ_DECIMALS,) * 3 + (AC_DECIMALS,) * 2
+    out = []
+    for i in range(len(block)):
+        words = ["G1" if block[i, G] else "G0"]
+        ch = changed[i]
+        ri = r[i]
+        for k in range(5):
+            if ch[k]:
+                words.append(f"{names[k]}{ri[k]:.{fmts[k]}f}")
+        if e[i] != 0.0:
+            words.append(f"E{e[i]:.{E_DECIMALS}f}")
+        if ch[5]:
+            words.append(f"F{ri[5]:.0f}")
+        if len(words) > 1:
+            out.append(" ".join(words))
+    prev[:6] = r[-1]
+    return out

@@ -1,0 +1,232 @@
+"""Read hostd G-code (or any G0/G1 file in G90 with M82/M83) into move arrays and headers.
+
+Every ``G0``/``G1`` becomes one row with the pose it starts from and ends at; ``;HOSTD_*``
+comment lines become headers (``KINEMATICS``, ``PROCESS``, ``PLACEMENT``, ``ESTIMATE``) and
+markers that tag the following moves with their sub-part, layer and transition. Anything the
+reader cannot interpret raises :class:`GcodeFormatError` naming the line.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+AXES = "XYZAC"
+HEADERS = ("KINEMATICS", "PROCESS", "PLACEMENT", "ESTIMATE")
+_MARKER = re.compile(r";HOSTD_([A-Z_]+)\s*(.*)$")
+
+
+class GcodeFormatError(ValueError):
+    """A line the reader cannot interpret; the message starts with ``line N:``."""
+
+
+@dataclass
+class ParsedGcode:
+    """Moves of a file as arrays, with headers and markers.
+
+    Attributes
+    ----------
+    headers : dict
+        Header name (``KINEMATICS`` …) to its JSON payload.
+    start, end : (n, 5) float
+        Pose [X, Y, Z, A, C] before/after each move; NaN where not yet known.
+    e : (n,) float
+        Relative filament of each move, mm.
+    feed : (n,) float
+        Feed, mm/s (NaN before the first F).
+    g : (n,) int
+        0 for G0, 1 for G1.
+    line : (n,) int
+        1-based line number of each move.
+    subpart, layer : (n,) int
+        From the latest ``HOSTD_SUBPART`` / ``HOSTD_LAYER`` markers (-1 before any).
+    layer_seq : (n,) int
+        Running count of layers in print order (-1 before the first layer).
+    transition : (n,) bool
+        Inside a ``HOSTD_TRANSITION`` … ``HOSTD_TRANSITION_END`` block.
+    parents : dict of int to int or None
+    interfaces : list of dict
+        ``HOSTD_INTERFACE`` payloads with the layer_seq they precede.
+    transitions : list of dict
+        ``HOSTD_TRANSITION`` payloads with ``first``/``last`` move indices.
+    """
+
+    headers: dict[str, dict]
+    start: np.ndarray
+    end: np.ndarray
+    e: np.ndarray
+    feed: np.ndarray
+    g: np.ndarray
+    line: np.ndarray
+    subpart: np.ndarray
+    layer: np.ndarray
+    layer_seq: np.ndarray
+    transition: np.ndarray
+    parents: dict[int, int | None] = field(default_factory=dict)
+    interfaces: list[dict] = field(default_factory=list)
+    transitions: list[dict] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.e)
+
+    def require(self, name: str) -> dict:
+        """A header's payload, or :class:`GcodeFormatError` if the file has none."""
+        if name not in self.headers:
+            raise GcodeFormatError(f"no ;HOSTD_{name} header: not a hostd five-axis file")
+        return self.headers[name]
+
+
+class _State:
+    """Scalar parser state and the raw per-move columns."""
+
+    def __init__(self) -> None:
+        self.rel_e = True
+        self.e_abs = 0.0
+        self.sub, self.lay, self.seq, self.trans = -1, -1, -1, False
+        self.vals: list[list[float]] = []  # X Y Z A C F per row (NaN: not given / unknown)
+        self.home: list[bool] = []
+        self.meta: list[tuple[float, int, int, int, int, int, bool]] = []
+        self.headers: dict[str, dict] = {}
+        self.parents: dict[int, int | None] = {}
+        self.interfaces: list[dict] = []
+        self.transitions: list[dict] = []
+
+
+def _words(body: str, n: int) -> dict[str, float]:
+    out = {}
+    for tok in body.split()[1:]:
+        letter = tok[0].upper()
+        try:
+            out[letter] = float(tok[1:])
+        except ValueError:
+            raise GcodeFormatError(f"line {n}: bad word {tok!r}") from None
+    return out
+
+
+def _move(st: _State, words: dict[str, float], g: int, n: int) -> None:
+    nan = float("nan")
+    e = words.get("E", 0.0)
+    if not st.rel_e and "E" in words:
+        e, st.e_abs = e - st.e_abs, e
+    f = words.get("F", nan)
+    st.vals.append([words.get(a, nan) for a in AXES] + [f / 60.0])
+    st.home.append(False)
+    st.meta.append((e, g, n, st.sub, st.lay, st.seq, st.trans))
+
+
+def _command(st: _State, body: str, n: int) -> None:
+    head = body.split(None, 1)[0].upper()
+    if head in ("G0", "G1", "G00", "G01"):
+        _move(st, _words(body, n), 1 if head in ("G1", "G01") else 0, n)
+    elif head == "G91":
+        raise GcodeFormatError(f"line {n}: G91 relative positioning is not supported")
+    elif head == "M82":
+        st.rel_e = False
+    elif head == "M83":
+        st.rel_e = True
+    elif head == "G92":
+        words = _words(body, n)
+        if set(words) - {"E"}:
+            raise GcodeFormatError(f"line {n}: G92 of {''.join(sorted(set(words) - {'E'}))} "
+                                   "is not supported (only E)")
+        st.e_abs = words.get("E", 0.0)
+    elif head == "G28":
+        st.vals.append([float("nan")] * 6)
+        st.home.append(True)
+        st.meta.append((0.0, 0, n, st.sub, st.lay, st.seq, st.trans))
+
+
+def _marker(st: _State, name: str, payload: str, n: int) -> None:
+    data: dict = {}
+    if payload:
+        try:
+            data = json.loads(payload)
+        except json.JSONDecodeError as exc:
+            raise GcodeFormatError(f"line {n}: ;HOSTD_{name}: bad JSON: {exc.msg}") from None
+        if not isinstance(data, dict):
+            raise GcodeFormatError(f"line {n}: ;HOSTD_{name}: expected a JSON object")
+    try:
+        _apply_marker(st, name, data, len(st.meta))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise GcodeFormatError(f"line {n}: ;HOSTD_{name}: missing or bad key {exc}") from None
+
+
+def _apply_marker(st: _State, name: str, data: dict, n_moves: int) -> None:
+    if name in HEADERS:
+        st.headers[name] = data
+    elif name == "SUBPART":
+        st.sub, st.lay = int(data["index"]), -1
+        parent = data.get("parent")
+        st.parents[st.sub] = None if parent is None else int(parent)
+    elif name == "LAYER":
+        st.sub, st.lay = int(data["subpart"]), int(data["index"])
+        st.seq += 1
+    elif name == "INTERFACE":
+        st.interfaces.append({**data, "layer_seq": st.seq})
+    elif name == "TRANSITION":
+        st.trans = True
+        st.transitions.append({**data, "first": n_moves, "last": n_moves - 1})
+    elif name == "TRANSITION_END":
+        st.trans = False
+        if st.transitions:
+            st.transitions[-1]["last"] = n_moves - 1
+
+
+def _fill(vals: np.ndarray, home: np.ndarray) -> np.ndarray:
+    """Forward-fill each column; homing rows reset every axis to unknown."""
+    resets = home[:, None] & (np.arange(vals.shape[1]) < len(AXES))[None, :]
+    given = ~np.isnan(vals) | resets
+    idx = np.where(given, np.arange(len(vals))[:, None], -1)
+    idx = np.maximum.accumulate(idx, axis=0)
+    padded = np.vstack([vals, np.full((1, vals.shape[1]), np.nan)])
+    return padded[idx, np.arange(vals.shape[1])]
+
+
+def parse_lines(lines: Iterable[str]) -> ParsedGcode:
+    """Parse G-code lines (with or without newlines)."""
+    st = _State()
+    for n, raw in enumerate(lines, start=1):
+        text = raw.strip()
+        if not text:
+            continue
+        if text[0] == ";":
+            m = _MARKER.match(text)
+            if m:
+                _marker(st, m.group(1), m.group(2).strip(), n)
+            continue
+        body = text.split(";", 1)[0].strip()
+        if body:
+            _command(st, body, n)
+    return _assemble(st)
+
+
+def _assemble(st: _State) -> ParsedGcode:
+    vals = np.asarray(st.vals, dtype=float).reshape(-1, 6)
+    home = np.asarray(st.home, dtype=bool)
+    filled = _fill(vals, home)
+    keep = ~home
+    end = filled[keep, :5]
+    before = np.vstack([np.full((1, 5), np.nan), filled[:-1, :5]])[keep]
+    meta = np.asarray(st.meta, dtype=float).reshape(-1, 7)[keep]
+    kept_before = np.concatenate([[0], np.cumsum(keep)])
+    for t in st.transitions:
+        t["first"] = int(kept_before[t["first"]])
+        t["last"] = int(kept_before[t["last"] + 1]) - 1
+    return ParsedGcode(st.headers, before, end, meta[:, 0], filled[keep, 5],
+                       meta[:, 1].astype(int), meta[:, 2].astype(int), meta[:, 3].astype(int),
+                       meta[:, 4].astype(int), meta[:, 5].astype(int), meta[:, 6] > 0,
+                       st.parents, st.interfaces, st.transitions)
+
+
+def read_gcode(path: str | Path) -> ParsedGcode:
+    """Parse a G-code file."""
+    try:
+        text = Path(path).read_text(encoding="utf-8", errors="strict")
+    except UnicodeDecodeError as exc:
+        raise GcodeFormatError(f"{path}: not a text file ({exc.reason})") from None
+    return parse_lines(text.splitlines())

@@ -1,0 +1,189 @@
+"""Replay check: map a file's moves back to the part and judge what they would build.
+
+Reads only the file and the model: the ``;HOSTD_KINEMATICS`` header gives the inverse
+kinematics, ``;HOSTD_PROCESS`` the bead sizes, ``;HOSTD_PLACEMENT`` the STL → platform
+placement. Reported (all shares in [0, 1]):
+
+* ``inside``: deposited samples inside the model (or within 0.1 w of its surface);
+* ``coverage`` / ``shell_coverage``: model volume reached by the beads (:mod:`.replay_coverage`);
+* ``supported``: samples with support beneath them or bridging sparse infill, and the wall
+  figures of the strict rule (:mod:`.replay_support`);
+* ``collisions``: head samples that hit printed material or the platform
+  (:mod:`.replay_collide`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from slicer.gcode_reader import GcodeFormatError, ParsedGcode, read_gcode
+from slicer.printhead import Printhead
+from slicer.replay_collide import find_collisions
+from slicer.replay_coverage import coverage
+from slicer.replay_geometry import inside, surface_distance
+from slicer.replay_samples import (
+    Samples,
+    extruding_moves,
+    geometry_from_header,
+    positioned_moves,
+    sample_moves,
+)
+from slicer.replay_support import WALL_SLACK, bad_wall_layers, bridged, strict_support
+
+INSIDE_SLACK = 0.1  # × line width
+TIP_SPACING = 1.0  # mm between head samples along moves
+TIP_ANGLE = 1.0  # degrees between head samples while the table turns
+
+
+@dataclass
+class ReplayReport:
+    """Figures of one replay; plain data (picklable, JSON-friendly via :meth:`to_dict`)."""
+
+    moves: int
+    extruding_moves: int
+    deposited_mm: float
+    points: int
+    inside: float
+    coverage: float
+    shell_coverage: float
+    supported: float
+    bridged: float
+    wall_points: int
+    wall_supported: float
+    unsupported_wall_layers: list[str]
+    collisions: int
+    collision_messages: list[str]
+    seconds: float = 0.0
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        """Whether the file may be emitted (no collisions)."""
+        return self.collisions == 0
+
+    def to_dict(self) -> dict[str, object]:
+        """The report as a plain dict."""
+        return asdict(self)
+
+    def summary(self) -> str:
+        """One line of the main figures."""
+        return (f"inside {100 * self.inside:.2f}%, coverage {100 * self.coverage:.2f}% "
+                f"(shell {100 * self.shell_coverage:.2f}%), supported "
+                f"{100 * self.supported:.2f}% (bridging {100 * self.bridged:.2f}%), walls "
+                f"supported {100 * self.wall_supported:.2f}% with "
+                f"{len(self.unsupported_wall_layers)} unsupported wall layers, "
+                f"{self.collisions} collisions")
+
+
+def _process(parsed: ParsedGcode) -> dict[str, float]:
+    proc = parsed.require("PROCESS")
+    try:
+        out = {k: float(proc[k]) for k in ("layer_height", "line_width", "filament_diameter")}
+    except (KeyError, TypeError, ValueError) as exc:
+        raise GcodeFormatError(f";HOSTD_PROCESS: bad or missing key {exc}") from None
+    out["perimeters"] = float(proc.get("perimeters", 2))
+    out["infill_density"] = float(proc.get("infill_density", 0.2))
+    return out
+
+
+def _placement(parsed: ParsedGcode) -> np.ndarray:
+    try:
+        m = np.asarray(parsed.require("PLACEMENT")["matrix"], dtype=float)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise GcodeFormatError(f";HOSTD_PLACEMENT: bad matrix ({exc})") from None
+    if m.shape != (4, 4) or not np.isfinite(m).all():
+        raise GcodeFormatError(";HOSTD_PLACEMENT: the matrix must be 4 × 4 and finite")
+    return m
+
+
+def _head(parsed: ParsedGcode, head: Printhead | None) -> Printhead:
+    if head is not None:
+        return head
+    segs = parsed.headers.get("KINEMATICS", {}).get("printhead")
+    return Printhead(tuple(tuple(map(float, s)) for s in segs)) if segs else Printhead()
+
+
+def platform_triangles(mesh: trimesh.Trimesh, placement: np.ndarray) -> np.ndarray:
+    """The model's triangles moved into the platform frame, (t, 3, 3)."""
+    v = np.asarray(mesh.vertices, dtype=float) @ placement[:3, :3].T + placement[:3, 3]
+    return v[np.asarray(mesh.faces)]
+
+
+def part_frame_path(parsed: ParsedGcode) -> np.ndarray:
+    """End points of the extruding moves mapped back to STL coordinates, (n, 3)."""
+    from kinematics.transform import inverse
+
+    g = geometry_from_header(parsed)
+    m = extruding_moves(parsed)
+    p = inverse(parsed.end[m, :3], parsed.end[m, 3], parsed.end[m, 4], g)
+    place = _placement(parsed)
+    return (p - place[:3, 3]) @ np.linalg.inv(place[:3, :3]).T
+
+
+def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | None = None,
+                 platform_radius: float | None = None) -> ReplayReport:
+    """Replay ``parsed`` against ``mesh`` (STL coordinates) and report the figures."""
+    t0 = time.perf_counter()
+    timings: dict[str, float] = {}
+    geo = geometry_from_header(parsed)
+    proc = _process(parsed)
+    w, t = proc["line_width"], proc["layer_height"]
+    head = _head(parsed, head)
+    radius = platform_radius if platform_radius is not None else float(
+        parsed.headers.get("KINEMATICS", {}).get("platform_radius", 150.0))
+    tris = platform_triangles(mesh, _placement(parsed))
+    bead_area = math.pi * proc["filament_diameter"] ** 2 / 4.0 / w
+    ext = extruding_moves(parsed)
+    s = sample_moves(parsed, geo, ext, 0.5 * w, TIP_ANGLE, bead_area)
+    timings["sample"] = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    dist = surface_distance(tris, s.p, WALL_SLACK * w)
+    wall = np.isfinite(dist)
+    ins = inside(tris, s.p) | (dist <= INSIDE_SLACK * w)
+    timings["inside"] = time.perf_counter() - t1
+
+    t1 = time.perf_counter()
+    ok = strict_support(s, t, w, radius)
+    bridge = bridged(s, ~ok & ~wall & ins, t, w, proc["infill_density"])
+    timings["support"] = time.perf_counter() - t1
+
+    t1 = time.perf_counter()
+    cov, shell_cov = coverage(tris, s, w, t, int(proc["perimeters"]), proc["infill_density"])
+    timings["coverage"] = time.perf_counter() - t1
+
+    t1 = time.perf_counter()
+    tips = sample_moves(parsed, geo, positioned_moves(parsed), TIP_SPACING, TIP_ANGLE,
+                        bead_area, ends=True)
+    n_hit, reports = find_collisions(parsed, tips, s, head, radius)
+    timings["collisions"] = time.perf_counter() - t1
+
+    length = np.linalg.norm(np.nan_to_num(parsed.end[ext, :3] - parsed.start[ext, :3]), axis=1)
+    bad_layers = [_layer_name(s, k) for k in bad_wall_layers(s, wall, ok)]
+    n = max(len(s), 1)
+    return ReplayReport(
+        moves=len(parsed), extruding_moves=len(ext), deposited_mm=float(length.sum()),
+        points=len(s), inside=float(ins.sum() / n), coverage=cov, shell_coverage=shell_cov,
+        supported=float((ok | bridge).sum() / n), bridged=float((bridge & ~ok).sum() / n),
+        wall_points=int(wall.sum()),
+        wall_supported=float(ok[wall].mean()) if wall.any() else 1.0,
+        unsupported_wall_layers=bad_layers, collisions=n_hit,
+        collision_messages=[r.message() for r in reports],
+        seconds=time.perf_counter() - t0, timings=timings)
+
+
+def _layer_name(s: Samples, seq: int) -> str:
+    i = int(np.flatnonzero(s.seq == seq)[0])
+    return f"sub-part {int(s.subpart[i])} layer {int(s.layer[i])}"
+
+
+def replay_file(path: str | Path, mesh: trimesh.Trimesh, head: Printhead | None = None,
+                platform_radius: float | None = None) -> ReplayReport:
+    """Read ``path`` and replay it against ``mesh``."""
+    return replay_check(read_gcode(path), mesh, head, platform_radius)

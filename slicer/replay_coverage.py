@@ -1,0 +1,86 @@
+"""How much of the model's volume the deposited beads reach.
+
+The model is sampled on a regular grid (at most ``MAX_GRID`` points). A grid point in the
+*shell* (within ``perimeters · w`` of the surface) is covered when a deposited sample's bead
+holds it: axial offset along that sample's nozzle axis within the bead height (± a quarter
+layer) and lateral offset at most 0.75 w. A *core* point (deeper inside, where sparse infill
+goes) is covered when a deposited sample lies within half the infill spacing (w / density)
+plus 0.75 w and one layer height: the toolpaths reach it at the designed density.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from slicer.replay_geometry import surface_distance, volume_grid
+from slicer.replay_samples import Samples
+
+MAX_GRID = 60_000
+MIN_PITCH = 0.3
+NEIGHBOURS = 12
+REACH = 0.75  # × line width
+
+
+def mesh_volume(tris: np.ndarray) -> float:
+    """Enclosed volume of a closed mesh (t, 3, 3), mm³."""
+    return abs(float(np.einsum("ij,ij->i", tris[:, 0], np.cross(tris[:, 1], tris[:, 2])).sum())
+               / 6.0)
+
+
+def grid_pitch(volume: float) -> float:
+    """Grid spacing that keeps the grid under ``MAX_GRID`` points, mm."""
+    return max(MIN_PITCH, (volume / MAX_GRID) ** (1.0 / 3.0))
+
+
+def _shell_covered(g: np.ndarray, s: Samples, tree: cKDTree, w: float, t: float
+                   ) -> np.ndarray:
+    r = float(np.hypot(REACH * w, s.h.max() + 0.25 * t))
+    k = min(NEIGHBOURS, len(s))
+    dist, idx = tree.query(g, k=k, distance_upper_bound=r)
+    dist, idx = dist.reshape(len(g), k), idx.reshape(len(g), k)
+    valid = np.isfinite(dist)
+    j = np.where(valid, idx, 0)
+    rel = g[:, None, :] - s.p[j]
+    u = s.u[j]
+    ax = np.einsum("ijk,ijk->ij", rel, u)
+    lat = np.linalg.norm(rel - ax[..., None] * u, axis=2)
+    inside = (ax <= 0.25 * t) & (ax >= -s.h[j] - 0.25 * t) & (lat <= REACH * w)
+    return (valid & inside).any(axis=1)
+
+
+def coverage(tris: np.ndarray, s: Samples, line_width: float, layer_height: float,
+             perimeters: int, infill_density: float) -> tuple[float, float]:
+    """Share of the model volume covered, overall and in the shell.
+
+    Parameters
+    ----------
+    tris : (t, 3, 3) float
+        The model in the platform frame.
+    s : Samples
+        Deposited samples.
+
+    Returns
+    -------
+    (total, shell) : float, float
+        Shares in [0, 1] (1.0 for an empty model).
+    """
+    pitch = grid_pitch(mesh_volume(tris))
+    g = volume_grid(tris, pitch)
+    if len(g) == 0:
+        return 1.0, 1.0
+    if len(s) == 0:
+        return 0.0, 0.0
+    depth = max(perimeters, 1) * line_width
+    shell = np.isfinite(surface_distance(tris, g, depth))
+    tree = cKDTree(s.p)
+    covered = np.zeros(len(g), dtype=bool)
+    covered[shell] = _shell_covered(g[shell], s, tree, line_width, layer_height)
+    core = ~shell
+    if core.any():
+        spacing = line_width / infill_density if infill_density > 0 else 0.0
+        reach = 0.5 * spacing + REACH * line_width + layer_height
+        d, _ = tree.query(g[core], k=1, distance_upper_bound=reach)
+        covered[core] = np.isfinite(d)
+    shell_share = float(covered[shell].mean()) if shell.any() else 1.0
+    return float(covered.mean()), shell_share

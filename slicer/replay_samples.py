@@ -1,0 +1,121 @@
+"""Moves of a parsed file as platform-frame samples: deposited beads and nozzle tip positions.
+
+The firmware interpolates all joints linearly, so a sample at fraction s of a move is the
+joint pose ``start + s (end - start)`` mapped back through the inverse kinematics: exact for
+any move, including those that turn the table.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from kinematics.machine import MachineGeometry
+from kinematics.transform import inverse, table_rotation
+from slicer.gcode_reader import GcodeFormatError, ParsedGcode
+
+
+@dataclass
+class Samples:
+    """Points along moves in the platform frame.
+
+    Attributes
+    ----------
+    p : (n, 3) float
+        Nozzle tip positions, mm.
+    u : (n, 3) float
+        Nozzle axis (machine +Z) in the platform frame, unit.
+    h : (n,) float
+        Local bead height from the extruded filament (0 for travel), mm.
+    move : (n,) int
+        Index of the move each sample lies on.
+    seq, subpart, layer : (n,) int
+        Layer in print order, sub-part and layer index of that move.
+    """
+
+    p: np.ndarray
+    u: np.ndarray
+    h: np.ndarray
+    move: np.ndarray
+    seq: np.ndarray
+    subpart: np.ndarray
+    layer: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.p)
+
+    def take(self, mask: np.ndarray) -> Samples:
+        """The samples where ``mask`` holds."""
+        return Samples(self.p[mask], self.u[mask], self.h[mask], self.move[mask],
+                       self.seq[mask], self.subpart[mask], self.layer[mask])
+
+
+def geometry_from_header(parsed: ParsedGcode) -> MachineGeometry:
+    """The machine geometry of ``;HOSTD_KINEMATICS``."""
+    kin = parsed.require("KINEMATICS")
+    if kin.get("type") != "xyzac-trt":
+        raise GcodeFormatError(f"unsupported kinematics type {kin.get('type')!r}")
+    try:
+        c_lim = kin.get("c_limits")
+        return MachineGeometry(tuple(map(float, kin["table_origin"])),
+                               tuple(map(float, kin["a_pivot"])),
+                               tuple(map(float, kin.get("a_limits", (-90.0, 90.0)))),
+                               None if c_lim is None else tuple(map(float, c_lim)))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise GcodeFormatError(f";HOSTD_KINEMATICS: bad or missing key {exc}") from None
+
+
+def nozzle_axes(a: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Machine +Z in the platform frame for table angles (degrees), (n, 3)."""
+    return table_rotation(a, c)[..., 2, :]
+
+
+def _fractions(count: np.ndarray, ends: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Owner index and fraction (k + 0.5) / count (or (k + 1) / count with ``ends``)."""
+    owner = np.repeat(np.arange(len(count)), count)
+    k = np.arange(count.sum()) - np.repeat(np.cumsum(count) - count, count)
+    return owner, (k + (1.0 if ends else 0.5)) / count[owner]
+
+
+def move_lengths(parsed: ParsedGcode) -> tuple[np.ndarray, np.ndarray]:
+    """Machine-frame XYZ length and largest A/C change of every move (unknown start → 0)."""
+    delta = np.nan_to_num(parsed.end - parsed.start, nan=0.0)
+    return np.linalg.norm(delta[:, :3], axis=1), np.abs(delta[:, 3:5]).max(axis=1)
+
+
+def sample_moves(parsed: ParsedGcode, geometry: MachineGeometry, moves: np.ndarray,
+                 spacing: float, angle_step: float, bead_area: float,
+                 ends: bool = False) -> Samples:
+    """Samples along ``moves`` (indices) at most ``spacing`` mm and ``angle_step``° apart.
+
+    ``bead_area`` is filament area / line width: bead height = E · bead_area / length.
+    Samples sit at the middles of equal pieces, or at their ends (move end included) with
+    ``ends``.
+    """
+    length, turn = move_lengths(parsed)
+    length, turn = length[moves], turn[moves]
+    count = np.maximum(1, np.ceil(np.maximum(length / spacing, turn / angle_step))).astype(int)
+    owner, s = _fractions(count, ends)
+    m = moves[owner]
+    j = parsed.start[m] + (parsed.end[m] - parsed.start[m]) * s[:, None]
+    p = inverse(j[:, :3], j[:, 3], j[:, 4], geometry)
+    safe_len = np.where(length > 0, length, math.inf)
+    h = np.maximum(parsed.e[moves], 0.0) * bead_area / safe_len
+    return Samples(p, nozzle_axes(j[:, 3], j[:, 4]), h[owner], m, parsed.layer_seq[m],
+                   parsed.subpart[m], parsed.layer[m])
+
+
+def extruding_moves(parsed: ParsedGcode) -> np.ndarray:
+    """Indices of moves that deposit material (E > 0 while X/Y/Z move from a known pose)."""
+    length, _ = move_lengths(parsed)
+    known = np.isfinite(parsed.start).all(axis=1)
+    return np.flatnonzero((parsed.e > 0) & (length > 1e-9) & known)
+
+
+def positioned_moves(parsed: ParsedGcode) -> np.ndarray:
+    """Indices of all moves from a known pose that move X/Y/Z or turn the table."""
+    length, turn = move_lengths(parsed)
+    known = np.isfinite(parsed.start).all(axis=1) & np.isfinite(parsed.end).all(axis=1)
+    return np.flatnonzero(known & ((length > 1e-9) | (turn > 1e-9)))
