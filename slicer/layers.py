@@ -21,7 +21,7 @@ plane hits a face of the model exactly; paths later lie on layer i's plane (its 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
 import manifold3d as m3
@@ -162,8 +162,11 @@ def _try_plane(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray,
 
 def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLike,
                  base_normal: ArrayLike, ms: MarchSettings, accept: Accept | None = None,
-                 subpart: int = 0) -> list[LayerPlane]:
+                 subpart: int = 0) -> Iterator[LayerPlane]:
     """March layer planes along ``curve`` from the base plane until the sections run out.
+
+    A generator: each layer is yielded as soon as it is accepted, so the caller can update
+    the state its ``accept`` hook reads (table C, printed material) before the next plane.
 
     Parameters
     ----------
@@ -186,22 +189,21 @@ def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLik
     """
     below = (np.asarray(base_origin, dtype=float), unit(base_normal)[0][0])
     frame = plane_frame(below[1])
-    s_prev, radius, layers = 0.0, 0.0, []
+    s_prev, radius = 0.0, 0.0
     slack = TOL.turn_margin * min(1.0 - ms.f_min, ms.f_max - 1.0) * ms.t
     for i in range(ms.max_layers):
         s = _advance(curve, s_prev, below, ms.t)
         origin = curve.point(s)[0]
-        origin = origin + (ms.t - (origin - below[0]) @ below[1]) * below[1] * (i == 0)
+        origin = origin + (ms.t - (origin - below[0]) @ below[1]) * below[1]  # exactly t above
         target = curve.tangent(s)[0] if i else below[1]
         max_turn = float(np.degrees(np.arctan2(slack, radius))) if radius > 0 else 0.0
         layer = _choose(solid, origin, frame, below, target, max_turn, ms, accept, subpart, i)
         if layer is None:
             break
         layer.s = s
-        layers.append(layer)
+        yield layer
         below, frame, s_prev = (origin, layer.frame[2]), layer.frame, s
         radius = region_radius(layer.region) + 2.0 * ms.t
-    return layers
 
 
 def _choose(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray,

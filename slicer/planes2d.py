@@ -32,8 +32,11 @@ class Tolerances:
     min_area: float = 1e-4  # polygons smaller than this (mm²) are dropped
     min_path: float = 1e-3  # paths shorter than this are dropped
     contain: float = 1e-6  # containment slack of generated paths
+    same: float = 1e-6  # vertex tolerance of "the same polygon" in consecutive layers, mm
     straight_rel: float = 0.03  # skeleton deviation / length below which a part is straight
     straight_abs: float = 0.5  # ... or below this absolute deviation
+    straight_thick: float = 0.15  # ... or below this fraction of the part's smallest extent
+    snap_deg: float = 5.0  # a straight axis this close to the base normal is the base normal
     turn_margin: float = 0.9  # fraction of the thickness slack a turn may use
 
 
@@ -137,7 +140,9 @@ def cross_section_polygons(cs: m3.CrossSection) -> BaseGeometry:
 
 
 def _polygonal(geom: BaseGeometry) -> BaseGeometry:
-    """Only the polygonal parts of ``geom``, above :data:`TOL.min_area`."""
+    """Only the polygonal parts of ``geom``, above :data:`TOL.min_area`, made valid."""
+    if not shapely.is_valid(geom):
+        geom = shapely.make_valid(geom)
     parts = shapely.get_parts(geom)
     keep = [p for p in parts if p.geom_type == "Polygon" and p.area > TOL.min_area]
     keep += [q for p in parts if p.geom_type in ("MultiPolygon", "GeometryCollection")

@@ -13,9 +13,11 @@ Pipeline (paper §2.2.4 (1), improved):
    centre, prefixed by the base centre itself.
 4. **Fit**: the paper fits y(x), z(x) polynomials, which fail when a branch is vertical (x is
    constant). Here a parametric smoothing spline p(u) (``scipy.interpolate.splprep``) is fitted
-   and re-parameterised by arc length s through a dense table. Straight chains (deviation below
-   :data:`TOL.straight_rel` of the length) degenerate to their least-squares axis; when MCF fails
-   or gives too short a chain, the fallback is the PCA axis of the part from its base.
+   and re-parameterised by arc length s through a dense table. Straight chains (deviation from
+   their least-squares line below :data:`TOL.straight_rel` of the length or
+   :data:`TOL.straight_thick` of the part's smallest extent) degenerate to that axis, snapped to
+   the base normal within :data:`TOL.snap_deg` (so a straight root prints straight up); when MCF
+   fails or gives too short a chain, the fallback is the PCA axis of the part from its base.
 
 Beyond its ends the curve continues straight along its end tangents, so slicing can run past
 the (always slightly short) MCF skeleton to the end of the part.
@@ -38,7 +40,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from slicer.planes2d import TOL, cross_section_polygons, to_manifold, unit
 
-PROXY_CELLS = 22  # grid cells along the largest extent of the solid proxy
+PROXY_CELLS = 16  # grid cells along the largest extent of the solid proxy
 TABLE_SIZE = 2048  # samples of the arc-length table
 CHAIN_STEP = 1.0  # resampling step of the skeleton chain before fitting, mm
 
@@ -297,8 +299,10 @@ def skeleton_curve(mesh: trimesh.Trimesh, start: ArrayLike, normal: ArrayLike,
     chain = _resample(np.vstack([a, chain]), CHAIN_STEP)
     d, dev = _axis_fit(chain)
     length = float(np.linalg.norm(chain[-1] - chain[0]))
-    if dev < max(TOL.straight_abs, TOL.straight_rel * length):
+    if dev < max(TOL.straight_abs, TOL.straight_rel * length,
+                 TOL.straight_thick * float(mesh.extents.min())):
         d = d if d @ (chain[-1] - a) > 0 else -d
+        d = n if np.degrees(np.arccos(np.clip(d @ n, -1.0, 1.0))) < TOL.snap_deg else d
         return line_curve(a, d, _reach(mesh, a, d), "axis")
     sigma = 0.25 * float(mesh.extents.max()) / cells
     return fit_curve(chain, smoothing=len(chain) * sigma**2, source="mcf")

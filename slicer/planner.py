@@ -1,0 +1,304 @@
+"""Print planning: decomposition → skeleton curves → marched layers → toolpaths → PrintPlan.
+
+:func:`plan_print` slices every sub-part in build order along its skeleton curve
+(:mod:`slicer.skeleton`, :mod:`slicer.layers`), choosing A/C per layer with
+:func:`kinematics.orient.solve_orientation` (C continuity) and vetoing planes whose A is out of
+range or whose printhead would hold printed material or cross the platform (the turn is then
+limited; :class:`SlicingError` names sub-part, layer and obstacle when even an unturned plane
+fails). :func:`plan_planar` is the 3-axis control: one sub-part, horizontal layers, A = C = 0.
+
+Paper §2.2.5 turns the table once per sub-part by the base normal (eqs. 7–8, whose arctan loses
+the quadrant); here every layer has its own A/C from the two-solution solver.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import manifold3d as m3
+import numpy as np
+import shapely
+import trimesh
+from shapely.geometry.base import BaseGeometry
+
+from kinematics.errors import UnreachableDirection
+from kinematics.machine import MachineGeometry
+from kinematics.orient import solve_orientation
+from slicer.interfaces import ChildBase, interface_zones
+from slicer.layers import (
+    LayerPlane,
+    MarchSettings,
+    SlicingError,
+    local_thickness,
+    march_layers,
+)
+from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
+from slicer.planes2d import from_plane, plane_frame, section, to_manifold
+from slicer.printhead import Printhead
+from slicer.settings import ProcessSettings
+from slicer.skeleton import SkeletonCurve, line_curve, skeleton_curve
+from slicer.toolpaths import FillSpec, Path2D, layer_paths
+from slicer.zones import solid_zones
+
+__all__ = ["SlicingError", "plan_planar", "plan_print"]
+
+OBSTACLE_SPACING = 1.0  # mm between obstacle samples (printed surfaces and outlines)
+TIP_SPACING = 2.0  # mm between nozzle positions checked per layer
+UP = np.array([0.0, 0.0, 1.0])
+
+_CURVES: dict[tuple, SkeletonCurve] = {}  # skeleton cache: (mesh hash, start, normal) → curve
+
+
+@dataclass
+class _Machine:
+    """Per-plan state of the collision/orientation veto."""
+
+    geometry: MachineGeometry
+    head: Printhead | None
+    subpart: int = 0
+    c: float = 0.0
+    pose: tuple[float, float] = (0.0, 0.0)
+    fixed: bool = False  # planar control: A = C = 0 always
+    parts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # earlier sub-parts
+    own: list[np.ndarray] = field(default_factory=list)  # outlines of this sub-part's layers
+
+    def accept(self, origin: np.ndarray, frame: np.ndarray, region: BaseGeometry) -> str | None:
+        """None if the plane can be printed, else the name of what is in the way."""
+        n = frame[2]
+        if self.fixed:
+            self.pose = (0.0, 0.0)
+        else:
+            try:
+                self.pose = solve_orientation(n, self.geometry, self.c)
+            except UnreachableDirection:
+                return "the A/C limits"
+        if self.head is None:
+            return None
+        tips = _outline(region, origin, frame, TIP_SPACING)
+        drop = self.head.lowest_point(origin, n) - origin[2]
+        if len(tips) and tips[:, 2].min() + drop < -1e-9:
+            return "platform"
+        obstacles = np.vstack([self.parts, *self.own]) if self.own else self.parts
+        h = (obstacles - origin) @ n
+        near = obstacles[(h > 1e-9) & (np.linalg.norm(obstacles - origin, axis=1)
+                                       < self.head.reach + _radius(tips, origin))]
+        if len(near) and self.head.collisions(near, tips, n).any():
+            return "printed part"
+        return None
+
+
+def _radius(points: np.ndarray, origin: np.ndarray) -> float:
+    return float(np.linalg.norm(points - origin, axis=1).max()) if len(points) else 0.0
+
+
+def _outline(region: BaseGeometry, origin: np.ndarray, frame: np.ndarray,
+             spacing: float) -> np.ndarray:
+    """Boundary samples of a 2D region lifted to its plane, (n, 3) float."""
+    if region.is_empty:
+        return np.zeros((0, 3))
+    xy = shapely.get_coordinates(shapely.segmentize(region.boundary, spacing))
+    return from_plane(xy, origin, frame)
+
+
+def _surface_samples(mesh: trimesh.Trimesh, spacing: float) -> np.ndarray:
+    """Vertices plus seeded area samples of a mesh surface, (n, 3) float."""
+    count = int(mesh.area / spacing**2) + 1
+    pts, _ = trimesh.sample.sample_surface(mesh, count, seed=0)
+    return np.vstack([mesh.vertices, pts])
+
+
+def _curve(mesh: trimesh.Trimesh, start: np.ndarray, normal: np.ndarray) -> SkeletonCurve:
+    key = (mesh.identifier_hash, tuple(np.round(start, 6)), tuple(np.round(normal, 9)))
+    if key not in _CURVES:
+        _CURVES[key] = skeleton_curve(mesh, start, normal)
+    return _CURVES[key]
+
+
+def _base_centre(solid: m3.Manifold, point: np.ndarray, normal: np.ndarray,
+                 t: float) -> tuple[np.ndarray, BaseGeometry, np.ndarray]:
+    """Centre of the base section (on the base plane), the section and its frame."""
+    frame = plane_frame(normal)
+    sec = section(solid, point + 0.5 * t * frame[2], frame)
+    if sec.is_empty:
+        raise SlicingError(f"the base plane through {np.round(point, 2).tolist()} misses the part")
+    c = shapely.centroid(sec)
+    return from_plane([[c.x, c.y]], point, frame)[0], sec, frame
+
+
+def _march(settings: ProcessSettings) -> MarchSettings:
+    return MarchSettings(settings.layer_height, settings.min_layer_factor,
+                         settings.max_layer_factor)
+
+
+def _spec(settings: ProcessSettings) -> FillSpec:
+    return FillSpec(settings.line_width, settings.perimeters, settings.infill_density,
+                    settings.infill_angle)
+
+
+def _lift(paths: Sequence[Path2D], layer: LayerPlane, settings: ProcessSettings,
+          speed_factor: float, flow: float, first: bool) -> list[Path]:
+    """2D paths → plan Paths in the platform frame with per-vertex local height."""
+    out = []
+    for p in paths:
+        pts = from_plane(p.xy, layer.origin, layer.frame)
+        h = _heights(pts, layer)
+        base = settings.perimeter_speed if p.kind == "perimeter" else settings.print_speed
+        speed = (settings.first_layer_speed if first else base) * speed_factor
+        out.append(Path(p.kind, pts, h, p.width, speed, flow, p.closed))
+    return out
+
+
+def _heights(points: np.ndarray, layer: LayerPlane) -> np.ndarray:
+    return local_thickness(points, layer.frame[2], layer.below)
+
+
+@dataclass
+class _Timer:
+    laps: dict[str, float] = field(default_factory=dict)
+    t: float = field(default_factory=time.perf_counter)
+
+    def lap(self, name: str) -> None:
+        now = time.perf_counter()
+        self.laps[name] = self.laps.get(name, 0.0) + now - self.t
+        self.t = now
+
+
+def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np.ndarray, bool],
+                   settings: ProcessSettings, machine: _Machine, timer: _Timer
+                   ) -> tuple[list[LayerPlane], list[tuple[float, float]]]:
+    """March one sub-part's layers; returns them with their (A, C).
+
+    ``base`` is (point, normal, upright): an upright part (the root, the planar control) is
+    sliced along the vertical through its base centre; others along their skeleton curve.
+    """
+    solid = to_manifold(mesh)
+    centre, _, _ = _base_centre(solid, base[0], base[1], settings.layer_height)
+    timer.lap("sections")
+    if base[2]:
+        curve = line_curve(centre, UP, float(np.ptp(mesh.vertices[:, 2])) + 1.0, "axis")
+    else:
+        curve = _curve(mesh, centre, base[1])
+    timer.lap("skeleton")
+    poses: list[tuple[float, float]] = []
+    machine.subpart, machine.own = index, []
+
+    def accept(origin: np.ndarray, frame: np.ndarray, region: BaseGeometry) -> str | None:
+        return machine.accept(origin, frame, region)
+
+    layers = []
+    for layer in march_layers(solid, curve, centre, base[1], _march(settings), accept, index):
+        layers.append(layer)
+        poses.append(machine.pose)
+        machine.c = machine.pose[1]
+        machine.own.append(_outline(layer.region, layer.origin, layer.frame, OBSTACLE_SPACING))
+    timer.lap("layers")
+    return layers, poses
+
+
+def _child_base(index: int, mesh: trimesh.Trimesh, point: np.ndarray, normal: np.ndarray,
+                t: float) -> ChildBase:
+    _, sec, frame = _base_centre(to_manifold(mesh), point, normal, t)
+    return ChildBase(index, np.asarray(point, dtype=float), frame, sec)
+
+
+def _build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, float]],
+                  settings: ProcessSettings, grounded: bool, bases: list[ChildBase],
+                  timer: _Timer) -> list[Layer]:
+    """Zones, toolpaths and plan Layers of one sub-part."""
+    solids = solid_zones(layers, settings.solid_layers, grounded)
+    t = settings.layer_height
+    depth = settings.interface_layers * t
+    izones, owners = interface_zones(layers, bases, depth, t, settings.line_width)
+    timer.lap("zones")
+    out, here = [], np.zeros(2)
+    spec = _spec(settings)
+    for i, (lp, (a, c)) in enumerate(zip(layers, poses, strict=True)):
+        paths2d = layer_paths(lp.region, shapely.union(solids[i], izones[i]), izones[i], spec,
+                              i, here)
+        if paths2d:
+            here = paths2d[-1].xy[-1]
+        first_child = i == 0 and not grounded
+        factor = settings.interface_speed_factor if first_child else 1.0
+        flow = settings.interface_flow if first_child else 1.0
+        paths = _lift(paths2d, lp, settings, factor, flow, first=(i == 0 and grounded))
+        out.append(Layer(index, i, lp.origin.copy(), lp.normal.copy(), float(a), float(c),
+                         lp.thickness, paths, owners[i], first_child))
+    timer.lap("toolpaths")
+    return out
+
+
+def plan_print(decomposition, settings: ProcessSettings, geometry: MachineGeometry,
+               head: Printhead | None = None) -> PrintPlan:
+    """Slice a decomposition into a five-axis print plan.
+
+    Parameters
+    ----------
+    decomposition : slicer.decompose.Decomposition
+        Sub-parts (``index``, ``parent``, ``mesh``, ``base_plane`` with ``point``/``normal``)
+        and their build ``order``.
+    settings : ProcessSettings
+    geometry : MachineGeometry
+    head : Printhead, optional
+        Collision model (default :meth:`Printhead.default`); ``None`` disables nothing —
+        pass ``Printhead.default()`` explicitly to be clear.
+
+    Returns
+    -------
+    PrintPlan
+        Sub-parts in build order; ``timings`` has seconds per stage.
+
+    Raises
+    ------
+    SlicingError
+        A layer has no reachable, collision-free plane (names sub-part, layer, obstacle).
+    """
+    head = Printhead.default() if head is None else head
+    timer = _Timer()
+    machine = _Machine(geometry, head)
+    subs = {s.index: s for s in decomposition.subparts}
+    t = settings.layer_height
+    plans = []
+    for k in decomposition.order:
+        sp = subs[k]
+        base = _base_of(sp)
+        layers, poses = _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings,
+                                       machine, timer)
+        kids = [_child_base(c.index, c.mesh, c.base_plane.point, c.base_plane.normal, t)
+                for c in decomposition.subparts if c.parent == k and c.base_plane is not None]
+        timer.lap("sections")
+        plan_layers = _build_layers(k, layers, poses, settings, sp.parent is None, kids, timer)
+        plans.append(SubpartPlan(k, sp.parent, None if sp.parent is None else base[0],
+                                 None if sp.parent is None else base[1],
+                                 np.asarray(sp.build_direction, dtype=float), plan_layers))
+        machine.parts = np.vstack([machine.parts, _surface_samples(sp.mesh, OBSTACLE_SPACING)])
+        timer.lap("obstacles")
+    volume = float(getattr(decomposition, "volume", sum(s.mesh.volume for s in subs.values())))
+    return PrintPlan(np.asarray(decomposition.placement, dtype=float), plans, volume,
+                     dict(timer.laps))
+
+
+def _base_of(sp) -> tuple[np.ndarray, np.ndarray]:
+    """Base plane (point, unit normal) of a sub-part; the platform z = 0 for the root."""
+    if sp.base_plane is None:
+        lo = sp.mesh.bounds[0]
+        return np.array([0.0, 0.0, float(lo[2])]), UP.copy()
+    n = np.asarray(sp.base_plane.normal, dtype=float)
+    return np.asarray(sp.base_plane.point, dtype=float), n / np.linalg.norm(n)
+
+
+def plan_planar(mesh: trimesh.Trimesh, settings: ProcessSettings,
+                geometry: MachineGeometry, placement: np.ndarray | None = None) -> PrintPlan:
+    """The 3-axis control: the whole part as one sub-part, horizontal layers, A = C = 0.
+
+    No collision veto (a 3-axis print never tilts); ``mesh`` must already stand on z = 0.
+    """
+    timer = _Timer()
+    machine = _Machine(geometry, None, fixed=True)
+    base = (np.array([0.0, 0.0, float(mesh.bounds[0][2])]), UP.copy(), True)
+    layers, poses = _slice_subpart(0, mesh, base, settings, machine, timer)
+    plan_layers = _build_layers(0, layers, poses, settings, True, [], timer)
+    sub = SubpartPlan(0, None, None, None, UP.copy(), plan_layers)
+    return PrintPlan(np.eye(4) if placement is None else np.asarray(placement, dtype=float),
+                     [sub], float(mesh.volume), dict(timer.laps))

@@ -1,0 +1,78 @@
+"""Solid zones of curved layers: areas exposed within ``solid_layers`` below or above.
+
+Layer i's zone is the part of its region not covered by *every* one of the k layers below it
+(bottom skin) or by every one of the k layers above it (top skin): R − (∩below ∩ ∩above).
+Neighbouring regions live in other (slightly turned) planes; they are projected orthogonally
+into layer i's frame with an affine map (:func:`slicer.planes2d.map_between`), exact for
+parallel planes and within ρ·(1 − cos Δθ) otherwise.
+
+Consecutive sections of a prismatic stretch are the same polygon, and overlaying coincident
+edges is GEOS's slowest case: neighbours equal to R vertex by vertex (within
+:data:`TOL.same`) are recognised first and skip the boolean operations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import shapely
+from shapely.geometry.base import BaseGeometry
+
+from slicer.layers import LayerPlane
+from slicer.planes2d import TOL, map_between, polygonal
+
+
+def _neighbours(layers: Sequence[LayerPlane], i: int, js: range,
+                open_end: bool) -> list[BaseGeometry] | None:
+    """Regions ``js`` mapped into layer i; None if one is missing (nothing there)."""
+    dst = (layers[i].origin, layers[i].frame)
+    mapped = []
+    for j in js:
+        if j < 0 or j >= len(layers):
+            if open_end:
+                continue
+            return None
+        mapped.append(map_between(layers[j].region, (layers[j].origin, layers[j].frame), dst))
+    return mapped
+
+
+def exposed(region: BaseGeometry, neighbours: list[BaseGeometry] | None) -> BaseGeometry:
+    """The part of ``region`` not covered by every neighbour (all of it if one is missing)."""
+    if neighbours is None:
+        return region
+    differ = [g for g in neighbours if not shapely.equals_exact(g, region, tolerance=TOL.same)]
+    if not differ:
+        return shapely.Polygon()
+    cover = region
+    for g in differ:
+        cover = polygonal(shapely.intersection(cover, g))
+    return polygonal(shapely.difference(region, cover))
+
+
+def solid_zones(layers: Sequence[LayerPlane], k: int, grounded: bool) -> list[BaseGeometry]:
+    """Per layer, the area to print 100 % solid.
+
+    Parameters
+    ----------
+    layers : sequence of LayerPlane
+        One sub-part's layers in order.
+    k : int
+        ``solid_layers``.
+    grounded : bool
+        True when nothing lies under the first layer (the root on the platform); a child's first
+        layers sit on its parent and get no bottom skin.
+
+    Returns
+    -------
+    list of shapely geometry
+    """
+    out = []
+    for i, layer in enumerate(layers):
+        if k <= 0:
+            out.append(shapely.Polygon())
+            continue
+        below = _neighbours(layers, i, range(i - k, i), open_end=not grounded)
+        above = _neighbours(layers, i, range(i + 1, i + k + 1), open_end=False)
+        both = None if below is None or above is None else below + above
+        out.append(exposed(layer.region, both))
+    return out
