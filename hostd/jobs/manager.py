@@ -19,7 +19,7 @@ from typing import Any
 from hostd.control.events import EventBus
 from hostd.control.rpc import PrinterBusy, ShuttingDown
 from hostd.jobs.spool import SUFFIX, Spool, SpoolError, check_gcode, check_stl, upload_kind
-from hostd.jobs.states import TERMINAL, JobState, JobStateError
+from hostd.jobs.states import TERMINAL, WAITING, JobState, JobStateError
 from hostd.jobs.store import Job, JobStore
 from hostd.link.errors import FirmwareReset, LinkError, LinkLost
 from hostd.printer.errors import PrinterError, ProgramError
@@ -75,11 +75,12 @@ class JobManager:
         self._resume_request: tuple[int, str] | None = None
         self._done: dict[int, asyncio.Event] = {}
         self._paused_evt: dict[int, asyncio.Event] = {}
-        counts = store.counts()
-        self.finished = {s: counts[s] for s in ("completed", "failed", "cancelled",
-                                                  "interrupted")}
+        self.counts = store.counts()  # jobs per state, kept in memory (status() is a read)
+        self.finished = {s: self.counts[s] for s in ("completed", "failed", "cancelled",
+                                                       "interrupted")}
         self.transitions = {"total": 0, "failed": 0}
         self.recovered: list[int] = []
+        self._last: dict[str, Any] | None = None  # figures of the last job that printed
 
     # -- life cycle ------------------------------------------------------------------------
 
@@ -89,6 +90,7 @@ class JobManager:
             if job.state is JobState.INTERRUPTED:
                 self.finished["interrupted"] += 1
             log.warning("job %d %s: %s", job.id, job.state, job.reason)
+        self.counts = self.store.counts()
         self._tasks = [asyncio.create_task(self._print_loop(), name="print-loop"),
                        asyncio.create_task(self._slice_loop(), name="slice-loop")]
         self._wake_print.set()
@@ -108,7 +110,7 @@ class JobManager:
             if job.state in (JobState.PRINTING, JobState.PAUSED):
                 self._set_state(job.id, JobState.INTERRUPTED,
                                 f"{reason} at line {act.streamer.acked}")
-            self.active = None
+            self._finish_active(act)
 
     # -- requests (from the control endpoints) -------------------------------------------
 
@@ -127,6 +129,7 @@ class JobManager:
         sha = await asyncio.to_thread(self.spool.put, data, SUFFIX[kind])
         job = self.store.add(Path(name).name[:200] or "upload", kind, sha,
                              gcode_sha=sha if kind == "gcode" else None, estimate=estimate)
+        self.counts[job.state.value] += 1
         self._emit_state(job, None, "submitted")
         if kind == "gcode":
             self.store.update(job.id, total_lines=total)
@@ -176,6 +179,7 @@ class JobManager:
 
     async def delete(self, job_id: int) -> Job:
         job = self.store.delete(job_id)
+        self.counts[job.state.value] -= 1
         for sha, kind in ((job.upload_sha, job.kind), (job.gcode_sha, "gcode")):
             if sha and self.store.references(sha) == 0:
                 await asyncio.to_thread(self.spool.remove, sha, SUFFIX[kind])
@@ -321,11 +325,16 @@ class JobManager:
         if self._stopping:
             return  # stop() records the state
         self._persist(act, force=True)
-        self.active = None
+        self._finish_active(act)
         state = {"completed": JobState.COMPLETED, "cancelled": JobState.CANCELLED,
                  "interrupted": JobState.INTERRUPTED}.get(outcome, JobState.FAILED)
         with contextlib.suppress(JobStateError):
             self._set_state(job.id, state, reason or outcome)
+
+    def _finish_active(self, act: Active) -> None:
+        """The job leaves the printer; its last figures stay visible in ``status()``."""
+        self._last = self._figures(act, time.monotonic())
+        self.active = None
 
     # -- streamer hooks --------------------------------------------------------------------
 
@@ -397,8 +406,15 @@ class JobManager:
     def _set_state(self, job_id: int, new: JobState, reason: str) -> Job:
         old = self.store.get(job_id).state
         job = self.store.transition(job_id, new, reason)
+        self.counts[old.value] -= 1
+        self.counts[new.value] += 1
         if new.value in self.finished and new is not old:
             self.finished[new.value] += 1
+        act = self.active
+        if act is not None and act.job.id == job_id:
+            act.job = job
+        elif self._last is not None and self._last["id"] == job_id:
+            self._last["state"] = new.value
         self._emit_state(job, old, reason)
         if new in TERMINAL or new is JobState.INTERRUPTED:
             evt = self._done.pop(job_id, None)
@@ -434,24 +450,33 @@ class JobManager:
                      elapsed_s=live["elapsed_s"], filament_mm=live["filament_mm"])
         return d
 
+    def _figures(self, act: Active, now: float) -> dict[str, Any]:
+        p = self._progress(act, now)
+        job = act.job
+        return {"info": {"id": str(job.id), "name": job.name}, "id": job.id,
+                "state": job.state.value, "progress": p["progress"],
+                "acked": p["acked"], "total": p["total"],
+                "subpart": p["subpart"], "subparts_total": len(act.program.subparts),
+                "layer": p["layer"], "layers_total": len(act.program.layers),
+                "elapsed_s": p["elapsed_s"], "remaining_s": p["eta_s"],
+                "filament_mm": p["filament_mm"], "a": p["a"], "c": p["c"],
+                "axes": {"A": p["a"], "C": p["c"]},
+                "pause_reason": act.streamer.pause_reason}
+
     def status(self) -> dict[str, Any]:
+        """A read-only snapshot from memory (no database access).
+
+        ``current`` is the job on the printer (or None); ``latest`` is the same, or else the
+        last job that printed since the start, with its final figures and state.
+        """
         act = self.active
-        current = None
-        if act is not None:
-            now = time.monotonic()
-            p = self._progress(act, now)
-            job = self.store.get(act.job.id)
-            current = {"info": {"id": str(job.id), "name": job.name}, "id": job.id,
-                       "state": job.state.value, "progress": p["progress"],
-                       "acked": p["acked"], "total": p["total"],
-                       "subpart": p["subpart"], "subparts_total": len(act.program.subparts),
-                       "layer": p["layer"], "layers_total": len(act.program.layers),
-                       "elapsed_s": p["elapsed_s"], "remaining_s": p["eta_s"],
-                       "filament_mm": p["filament_mm"], "a": p["a"], "c": p["c"],
-                       "pause_reason": act.streamer.pause_reason}
-        return {"queue_length": self.store.queue_length(), "counts": self.store.counts(),
-                "finished": dict(self.finished), "transitions": dict(self.transitions),
-                "current": current, "recovered": list(self.recovered)}
+        current = None if act is None else self._figures(act, time.monotonic())
+        latest = current if current is not None else self._last
+        return {"queue_length": sum(self.counts[s.value] for s in WAITING),
+                "counts": dict(self.counts), "finished": dict(self.finished),
+                "transitions": dict(self.transitions), "current": current,
+                "latest": None if latest is None else dict(latest),
+                "recovered": list(self.recovered)}
 
 
 def eta(estimate_s: float | None, ratio: float, elapsed: float, start_ratio: float

@@ -52,15 +52,26 @@ def _scalar_family(spec: Spec, value: Any) -> Metric | None:
     cls = CounterMetricFamily if spec.kind == "counter" else GaugeMetricFamily
     if spec.label is None:
         x = _number(value)
-        return None if x is None else cls(spec.name, spec.doc, value=x * spec.scale)
+        return None if x is None else cls(spec.name, spec.doc, value=x * spec.scale,
+                                          unit=spec.unit)
     if not isinstance(value, Mapping):
         return None
-    fam = cls(spec.name, spec.doc, labels=[spec.label])
-    for key, raw in sorted(value.items()):
+    fam = cls(spec.name, spec.doc, labels=[spec.label], unit=spec.unit)
+    for key, raw in _labelled(spec, value):
         x = _number(raw)
         if x is not None:
-            fam.add_metric([str(key)], x * spec.scale)
+            fam.add_metric([key], x * spec.scale)
     return fam
+
+
+def _labelled(spec: Spec, value: Mapping[str, Any]) -> Iterator[tuple[str, Any]]:
+    """(label value, raw number) pairs of a dict-valued path, per ``keys`` and ``field``."""
+    keys = spec.keys if spec.keys is not None else sorted(str(k) for k in value)
+    for key in keys:
+        raw = value.get(key)
+        if spec.field is not None:
+            raw = raw.get(spec.field) if isinstance(raw, Mapping) else None
+        yield key, raw
 
 
 def _histogram_family(spec: Spec, value: Any) -> Metric | None:
@@ -68,7 +79,7 @@ def _histogram_family(spec: Spec, value: Any) -> Metric | None:
         return None
     buckets = [("+Inf" if math.isinf(le) else f"{le:g}", float(n)) for le, n in value["buckets"]]
     return HistogramMetricFamily(spec.name, spec.doc, buckets=buckets,
-                                 sum_value=float(value.get("sum", 0.0)))
+                                 sum_value=float(value.get("sum", 0.0)), unit=spec.unit)
 
 
 def _info_family(spec: Spec, value: Any) -> Metric | None:

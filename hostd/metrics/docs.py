@@ -8,9 +8,9 @@ _EXPOSED = {"info": "info (`{name}_info`)", "stateset": "stateset (gauge per sta
 
 
 def render_markdown() -> str:
-    rows = ["| metric | type | labels | meaning |", "|---|---|---|---|"]
+    rows = ["| metric | type | unit | labels | meaning |", "|---|---|---|---|---|"]
     for s in SPECS:
         kind = _EXPOSED.get(s.kind, s.kind).format(name=s.name)
         labels = s.label or ("state" if s.kind == "stateset" else "")
-        rows.append(f"| `{s.name}` | {kind} | {labels} | {s.doc} |")
+        rows.append(f"| `{s.name}` | {kind} | {s.unit} | {labels} | {s.doc} |")
     return "\n".join(rows) + "\n"

@@ -1,8 +1,10 @@
 """The exported metrics, declared once: name, type, help text and where each value lives.
 
 Every value is read from the daemon's status snapshot (a dict of component ``status()``
-results, see :func:`hostd.daemon` wiring), addressed by a dotted path such as
-``link.lines_sent``. Metrics never reach into a component's internals.
+results, see :meth:`hostd.daemon.Daemon.snapshot`), addressed by a dotted path such as
+``link.lines_sent``. The job figures are those of ``jobs.latest``: the job printing, or else
+the last one that printed since the daemon started (so a finished job shows its outcome and
+a progress of 1 until the next one starts). Metrics never reach into a component's internals.
 Names follow Prometheus conventions: ``hostd_`` prefix, base units, ``_total`` on counters,
 labels of low cardinality only (the job id appears only in ``hostd_job_info``).
 """
@@ -19,6 +21,8 @@ class Spec:
     kind : "gauge" | "counter" | "histogram" | "info" | "stateset"
     path : dotted path to the value in the snapshot
     label : for a dict-valued path, the label its keys become
+    field : for a labelled path whose values are dicts, the entry of each to export
+    keys : for a labelled path, export only these keys (in this order)
     scale : factor applied to numbers (e.g. mm → m)
     """
 
@@ -27,7 +31,20 @@ class Spec:
     doc: str
     path: str
     label: str | None = None
+    field: str | None = None
+    keys: tuple[str, ...] | None = None
     scale: float = 1.0
+
+    @property
+    def unit(self) -> str:
+        """The base unit ending the name (``seconds``, ``celsius``...), or ``""``."""
+        if self.kind not in ("gauge", "counter", "histogram"):
+            return ""
+        stem = self.name.removesuffix("_total") if self.kind == "counter" else self.name
+        return next((u for u in UNITS if stem.endswith("_" + u)), "")
+
+
+UNITS = ("seconds", "celsius", "meters", "degrees", "bytes", "ratio")
 
 
 JOB_STATES = ("idle", "queued", "slicing", "ready", "printing", "paused", "completed", "failed",
@@ -37,24 +54,26 @@ SPECS: tuple[Spec, ...] = (
     Spec("hostd", "info", "Daemon version, printer and firmware identity.", "daemon.info"),
     Spec("hostd_firmware_capability", "gauge", "Firmware capabilities from M115 (1 = on).",
          "link.capabilities", label="capability"),
-    Spec("hostd_job", "info", "Identity of the current job (id, name).", "jobs.current.info"),
-    Spec("hostd_job_state", "stateset", "State of the current job.", "jobs.current.state"),
+    Spec("hostd_job", "info", "Identity of the current (or last) job (id, name).",
+         "jobs.latest.info"),
+    Spec("hostd_job_state", "stateset", "State of the current (or last) job.",
+         "jobs.latest.state"),
     Spec("hostd_job_progress_ratio", "gauge", "Acknowledged lines over total lines (0..1).",
-         "jobs.current.progress"),
+         "jobs.latest.progress"),
     Spec("hostd_job_subpart", "gauge", "Index of the sub-part being printed.",
-         "jobs.current.subpart"),
-    Spec("hostd_job_subparts", "gauge", "Number of sub-parts of the current job.",
-         "jobs.current.subparts_total"),
+         "jobs.latest.subpart"),
+    Spec("hostd_job_subparts", "gauge", "Number of sub-parts of the job.",
+         "jobs.latest.subparts_total"),
     Spec("hostd_job_layer", "gauge", "Index of the layer being printed in its sub-part.",
-         "jobs.current.layer"),
-    Spec("hostd_job_layers", "gauge", "Number of layers of the current job.",
-         "jobs.current.layers_total"),
+         "jobs.latest.layer"),
+    Spec("hostd_job_layers", "gauge", "Number of layers of the job.",
+         "jobs.latest.layers_total"),
     Spec("hostd_job_elapsed_seconds", "gauge", "Print time elapsed.",
-         "jobs.current.elapsed_s"),
+         "jobs.latest.elapsed_s"),
     Spec("hostd_job_remaining_seconds", "gauge", "Estimated print time remaining.",
-         "jobs.current.remaining_s"),
-    Spec("hostd_job_filament_used_meters", "gauge", "Filament fed so far in the current job.",
-         "jobs.current.filament_mm", scale=1e-3),
+         "jobs.latest.remaining_s"),
+    Spec("hostd_job_filament_used_meters", "gauge", "Filament fed so far in the job.",
+         "jobs.latest.filament_mm", scale=1e-3),
     Spec("hostd_queue_length", "gauge", "Jobs waiting (queued, slicing or ready).",
          "jobs.queue_length"),
     Spec("hostd_jobs_finished_total", "counter", "Jobs finished, by outcome.",
@@ -83,9 +102,10 @@ SPECS: tuple[Spec, ...] = (
     Spec("hostd_serial_ok_roundtrip_seconds", "histogram", "Time from a line's send to its ok.",
          "link.rtt"),
     Spec("hostd_temperature_celsius", "gauge", "Measured heater temperature.",
-         "link.temperatures.actual", label="heater"),
+         "link.temperatures", label="heater", field="actual"),
     Spec("hostd_temperature_target_celsius", "gauge", "Heater set point.",
-         "link.temperatures.target", label="heater"),
-    Spec("hostd_axis_position_degrees", "gauge", "Rotary axis position (A tilt, C rotation).",
-         "link.rotary", label="axis"),
+         "link.temperatures", label="heater", field="target"),
+    Spec("hostd_axis_position_degrees", "gauge",
+         "Rotary axis position after the job's acknowledged lines (A tilt, C rotation).",
+         "jobs.latest.axes", label="axis", keys=("A", "C")),
 )

@@ -25,15 +25,14 @@ def full_snapshot() -> dict:
                  "lines_sent": 120, "lines_acked": 118, "lines_resent": 3,
                  "checksum_errors": 2, "timeouts": 1, "reconnects": 0, "window_bytes": 127,
                  "rtt": rtt.snapshot(),
-                 "temperatures": {"actual": {"hotend": 209.5, "bed": 60.1},
-                                  "target": {"hotend": 210.0, "bed": 60.0}},
-                 "rotary": {"a": 45.0, "c": -90.0}},
+                 "temperatures": {"T": {"actual": 209.5, "target": 210.0, "power": 80},
+                                  "B": {"actual": 60.1, "target": 60.0, "power": None}}},
         "jobs": {"queue_length": 2, "finished": {"completed": 4, "failed": 1},
                  "transitions": {"total": 3, "failed": 0},
-                 "current": {"info": {"id": "j1", "name": "pipe"}, "state": "printing",
-                             "progress": 0.25, "subpart": 1, "subparts_total": 3, "layer": 7,
-                             "layers_total": 900, "elapsed_s": 12.0, "remaining_s": 36.0,
-                             "filament_mm": 2500.0}},
+                 "latest": {"info": {"id": "j1", "name": "pipe"}, "state": "printing",
+                            "progress": 0.25, "subpart": 1, "subparts_total": 3, "layer": 7,
+                            "layers_total": 900, "elapsed_s": 12.0, "remaining_s": 36.0,
+                            "filament_mm": 2500.0, "axes": {"A": 45.0, "C": -90.0, "X": 1}}},
         "slicer": {"durations": Buckets((1.0, 10.0)).snapshot()},
     }
 
@@ -69,12 +68,29 @@ def test_values_come_from_the_snapshot() -> None:
     assert fam["hostd_serial_lines_sent"].samples[0].value == 120
     assert fam["hostd_job_filament_used_meters"].samples[0].value == pytest.approx(2.5)
     temps = {s.labels["heater"]: s.value for s in fam["hostd_temperature_celsius"].samples}
-    assert temps == {"hotend": 209.5, "bed": 60.1}
+    assert temps == {"T": 209.5, "B": 60.1}
+    targets = {s.labels["heater"]: s.value
+               for s in fam["hostd_temperature_target_celsius"].samples}
+    assert targets == {"T": 210.0, "B": 60.0}
+    axes = {s.labels["axis"]: s.value for s in fam["hostd_axis_position_degrees"].samples}
+    assert axes == {"A": 45.0, "C": -90.0}
     state = {s.labels["hostd_job_state"]: s.value for s in fam["hostd_job_state"].samples}
     assert state["printing"] == 1 and sum(state.values()) == 1
     rtt = {s.labels.get("le"): s.value for s in fam["hostd_serial_ok_roundtrip_seconds"].samples
            if s.name.endswith("_bucket")}
     assert rtt == {"0.01": 1, "0.1": 2, "+Inf": 3}
+
+
+def test_units_are_declared_in_openmetrics() -> None:
+    from prometheus_client.openmetrics.exposition import generate_latest as om_latest
+    from prometheus_client.openmetrics.parser import text_string_to_metric_families as om_parse
+
+    text = om_latest(make_registry(full_snapshot)).decode()
+    units = {f.name: f.unit for f in om_parse(text)}
+    assert units["hostd_job_elapsed_seconds"] == "seconds"
+    assert units["hostd_temperature_celsius"] == "celsius"
+    assert units["hostd_job_progress_ratio"] == "ratio"
+    assert units["hostd_serial_lines_sent"] == ""
 
 
 def test_missing_values_are_left_out_not_invented() -> None:
