@@ -4,6 +4,11 @@ Components (serial link, job manager, slicing worker, control server, event bus,
 expose a read-only ``status()``; :meth:`Daemon.snapshot` gathers them for ``printer.status``
 and the metrics exporter. SIGTERM/SIGINT stop the job at a safe point (after the acknowledged
 lines; the job is recorded ``interrupted`` with its modal state) and close everything.
+
+Under systemd (``Type=notify``) the daemon sends ``READY=1`` once the control socket serves,
+``STATUS=`` with a one-line state when it changes, ``WATCHDOG=1`` from a task on the event loop
+while every supervised task (link supervisor, job loops, temperature monitor) is alive, and
+``STOPPING=1`` at shutdown. A control socket passed by ``hostd.socket`` is served as is.
 """
 
 from __future__ import annotations
@@ -13,6 +18,7 @@ import contextlib
 import logging
 import os
 import signal
+import socket
 import sys
 import time
 from pathlib import Path
@@ -31,7 +37,7 @@ from hostd.link.link import SerialLink
 from hostd.link.replies import Reply, Temperatures
 from hostd.link.settings import link_settings_from_config
 from hostd.printer.streamer import StreamSettings
-from hostd.sdnotify import notify
+from hostd.sdnotify import listen_fds, notify, watchdog_interval
 from hostd.sim.settings import sim_settings_from_config
 from hostd.slicing_worker import SlicingWorker
 
@@ -93,6 +99,7 @@ class Daemon:
         self.metrics: Any = None
         self._tasks: list[asyncio.Task[None]] = []
         self._jobs: JobManager | None = None
+        self._status_line = ""
 
     @property
     def jobs(self) -> JobManager:
@@ -113,22 +120,83 @@ class Daemon:
             self.config["daemon.socket"], build_registry(self), self.bus,
             max_message=self.config["daemon.max_upload_bytes"] * 4 // 3 + MESSAGE_OVERHEAD)
         try:
-            await self.server.start()
+            await self.server.start(_activated_socket())
         except ControlError as exc:
             raise DaemonError(str(exc)) from None
-        await self._connect_link()
+        connected = await self._connect_link()
         self.jobs.start()
         self._start_metrics()
         self._tasks.append(asyncio.create_task(self._temperature_monitor(), name="temps"))
-        notify("READY=1")
-        log.info("hostd %s ready (socket %s, state %s)", __version__,
-                 self.config["daemon.socket"], self.state_dir)
+        if not connected:
+            self._tasks.append(asyncio.create_task(self._link_supervisor(), name="link"))
+        self.bus.subscribe(lambda name, data: self._notify_status(),
+                           ("job.state", "printer.state"))
+        notify("READY=1\nSTATUS=" + self.status_line())
+        interval = watchdog_interval()
+        if interval is not None:
+            self._tasks.append(asyncio.create_task(self._watchdog(interval), name="watchdog"))
+        log.info("hostd %s ready (socket %s, state %s)", __version__, self.server.path,
+                 self.state_dir)
 
-    async def _connect_link(self) -> None:
+    async def _connect_link(self) -> bool:
         try:
             await self.link.connect()
-        except LinkError as exc:  # the link keeps reconnecting in the background
+        except LinkError as exc:
             log.error("serial link: %s", exc)
+            return False
+        return True
+
+    async def _link_supervisor(self) -> None:
+        """Retry the first connection with backoff (after it, the link reconnects itself)."""
+        s = self.link.settings
+        delay = s.reconnect_min
+        while True:
+            await asyncio.sleep(delay)  # backoff period, not synchronisation
+            try:
+                await self.link.connect()
+            except LinkError as exc:
+                log.debug("serial link: %s", exc)
+                delay = min(delay * 2, s.reconnect_max)
+                continue
+            log.info("serial link connected")
+            self._notify_status()
+            return
+
+    def healthy(self) -> bool:
+        """Every supervised task is alive (the link supervisor may have finished its job)."""
+        for task in self._tasks:
+            if task.done() and (task.get_name() != "link" or task.cancelled()
+                                or task.exception() is not None):
+                return False
+        return self._jobs is not None and self._jobs.alive() and not self.stopping.is_set()
+
+    async def _watchdog(self, interval: float) -> None:
+        """``WATCHDOG=1`` every ``interval`` s while healthy; runs on the loop, so a blocked or
+        dead loop stops the pings too and systemd restarts the daemon."""
+        while True:
+            if self.healthy():
+                notify("WATCHDOG=1")
+                self._notify_status()  # progress moves without events of its own
+            else:
+                log.error("unhealthy: a supervised task died; withholding the watchdog ping")
+            await asyncio.sleep(interval)  # the ping period, not synchronisation
+
+    def status_line(self) -> str:
+        """A short human state for ``systemctl status`` (``STATUS=``)."""
+        link = "link ready" if self.link.connected else "link down"
+        act = self._jobs.active if self._jobs is not None else None
+        if act is None:
+            waiting = self._jobs.status()["queue_length"] if self._jobs is not None else 0
+            return f"idle, {link}, {waiting} queued"
+        st = act.streamer
+        pct = 100 * st.acked / st.program.total if st.program.total else 100.0
+        return f"{act.job.state.value} job {act.job.id} ({act.job.name}) {pct:.0f}%, {link}"
+
+    def _notify_status(self) -> None:
+        line = self.status_line()
+        if line != self._status_line:
+            self._status_line = line
+            notify("STATUS=" + line)
 
     def _start_metrics(self) -> None:
         if not self.config["metrics.enabled"]:
@@ -181,7 +249,7 @@ class Daemon:
             return EXIT_FAILED
         await self.stopping.wait()
         log.info("stopping")
-        notify("STOPPING=1")
+        notify("STOPPING=1\nSTATUS=stopping")
         await self.close()
         return EXIT_OK
 
@@ -217,6 +285,16 @@ class Daemon:
             "events": self.bus.status(),
             "metrics": self.metrics.status() if self.metrics is not None else None,
         }
+
+
+def _activated_socket() -> socket.socket | None:
+    """The control socket passed by ``hostd.socket`` (the first fd), if any."""
+    fds = listen_fds()
+    if not fds:
+        return None
+    if len(fds) > 1:
+        log.warning("socket activation passed %d sockets; serving the first", len(fds))
+    return socket.socket(fileno=fds[0])
 
 
 def setup_logging(level: str) -> None:

@@ -13,6 +13,7 @@ import contextlib
 import itertools
 import logging
 import os
+import socket
 import stat
 from pathlib import Path
 from typing import Any
@@ -92,8 +93,13 @@ class ControlServer:
         self.requests = 0
         self.connections = 0
         self.oversized = 0
+        self.inherited = False  # the listening socket came from systemd (socket activation)
 
-    async def start(self) -> None:
+    async def start(self, sock: socket.socket | None = None) -> None:
+        """Listen on ``path``, or serve ``sock``, a listening socket passed by systemd."""
+        if sock is not None:
+            await self._adopt(sock)
+            return
         await self._remove_stale()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         old = os.umask(0o117)  # the socket is born 0660: no window with wider permissions
@@ -106,6 +112,21 @@ class ControlServer:
             os.umask(old)
         os.chmod(self.path, SOCKET_MODE)
         log.info("control socket %s", self.path)
+
+    async def _adopt(self, sock: socket.socket) -> None:
+        if sock.family != socket.AF_UNIX or sock.type != socket.SOCK_STREAM:
+            raise ControlError(f"inherited fd {sock.fileno()} is not a Unix stream socket")
+        try:
+            self._server = await asyncio.start_unix_server(self._serve, sock=sock,
+                                                           limit=self.max_message)
+        except OSError as exc:
+            raise ControlError(f"inherited socket: {exc.strerror or exc}") from None
+        self.inherited = True
+        name = sock.getsockname()
+        if isinstance(name, str) and name and Path(name) != self.path:
+            log.warning("socket activation: serving %s, not the configured %s", name, self.path)
+            self.path = Path(name)
+        log.info("control socket %s (passed by systemd)", self.path)
 
     async def _remove_stale(self) -> None:
         try:
@@ -134,7 +155,8 @@ class ControlServer:
         if self._server is not None:
             with contextlib.suppress(Exception):
                 await self._server.wait_closed()
-        self.path.unlink(missing_ok=True)
+        if not self.inherited:  # systemd owns an activated socket's file
+            self.path.unlink(missing_ok=True)
 
     def _broadcast(self, name: str, data: dict[str, Any]) -> None:
         for client in list(self.clients.values()):
@@ -192,7 +214,8 @@ class ControlServer:
             writer.close()  # also ends the reader of a dropped client
 
     def status(self) -> dict[str, Any]:
-        return {"socket": str(self.path), "clients": len(self.clients),
+        return {"socket": str(self.path), "activated": self.inherited,
+                "clients": len(self.clients),
                 "subscribed": sum(1 for c in self.clients.values() if c.subscribed is not None),
                 "connections_total": self.connections, "requests_total": self.requests,
                 "oversized_total": self.oversized}

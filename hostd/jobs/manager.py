@@ -96,6 +96,10 @@ class JobManager:
         self._wake_print.set()
         self._wake_slice.set()
 
+    def alive(self) -> bool:
+        """Whether the print and slice loops are running (for the watchdog)."""
+        return bool(self._tasks) and not any(t.done() for t in self._tasks)
+
     async def stop(self, reason: str = "daemon stopped") -> None:
         """Stop at a safe point: the active job stops feeding after its acked lines and is
         recorded ``interrupted`` with its progress and modal state."""

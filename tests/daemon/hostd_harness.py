@@ -141,11 +141,13 @@ class DaemonProc:
         self.stderr: list[str] = []
         self._drain: asyncio.Task[None] | None = None
 
-    async def start(self) -> None:
+    async def start(self, env: dict[str, str] | None = None, pass_fds: tuple[int, ...] = (),
+                    wrapper: tuple[str, ...] = ()) -> None:
+        """Spawn hostd (after ``wrapper`` argv, e.g. an fd-moving exec) and wait for ready."""
         self.proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "hostd.main", "--config", str(self.config),
-            stderr=asyncio.subprocess.PIPE, cwd=str(ROOT),
-            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+            *wrapper, sys.executable, "-m", "hostd.main", "--config", str(self.config),
+            stderr=asyncio.subprocess.PIPE, cwd=str(ROOT), pass_fds=pass_fds,
+            env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})})
         assert self.proc.stderr is not None
         while True:
             line = (await self.proc.stderr.readline()).decode()

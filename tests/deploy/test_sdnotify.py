@@ -4,7 +4,7 @@ import os
 import socket
 from pathlib import Path
 
-from hostd.sdnotify import notify, watchdog_interval
+from hostd.sdnotify import listen_fds, notify, watchdog_interval
 
 
 def test_notify_is_a_no_op_outside_systemd() -> None:
@@ -25,3 +25,15 @@ def test_watchdog_interval_is_half_the_period_for_this_process() -> None:
     assert watchdog_interval(env) == 15.0
     assert watchdog_interval({"WATCHDOG_USEC": "30000000", "WATCHDOG_PID": "1"}) is None
     assert watchdog_interval({}) is None
+
+
+def test_listen_fds_only_for_this_process_and_unset() -> None:
+    env = {"LISTEN_PID": str(os.getpid()), "LISTEN_FDS": "2", "LISTEN_FDNAMES": "a:b"}
+    assert listen_fds(env) == [3, 4]
+    assert env == {}, "unset, so that child processes do not take the sockets"
+    assert listen_fds({"LISTEN_PID": "1", "LISTEN_FDS": "1"}) == []
+    assert listen_fds({}) == []
+
+
+def test_notify_to_a_vanished_socket_is_reported_not_raised(tmp_path: Path) -> None:
+    assert notify("WATCHDOG=1", environ={"NOTIFY_SOCKET": str(tmp_path / "gone")}) is False
