@@ -1,0 +1,164 @@
+"""Planner: planar control, a hand-made two-part decomposition, collisions, sample pipes."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import manifold3d as m3
+import numpy as np
+import pytest
+import shapely
+import shapely.affinity
+
+from kinematics.machine import MachineGeometry
+from kinematics.transform import machine_direction
+from slicer.planner import SlicingError, plan_planar, plan_print
+from slicer.printhead import Printhead
+from slicer.samples import to_trimesh
+from slicer.settings import ProcessSettings
+
+S = ProcessSettings()
+G = MachineGeometry()
+TILT = np.radians(30.0)
+AXIS = np.array([np.sin(TILT), 0.0, np.cos(TILT)])
+
+
+def _decomposition(root: m3.Manifold, child: m3.Manifold, point, normal) -> SimpleNamespace:
+    plane = SimpleNamespace(point=np.asarray(point, float), normal=np.asarray(normal, float))
+    subs = [SimpleNamespace(index=0, parent=None, mesh=to_trimesh(root), base_plane=None,
+                            build_direction=np.array([0, 0, 1.0])),
+            SimpleNamespace(index=1, parent=0, mesh=to_trimesh(child), base_plane=plane,
+                            build_direction=np.asarray(normal, float))]
+    return SimpleNamespace(placement=np.eye(4), subparts=subs, order=[0, 1],
+                           volume=root.volume() + child.volume())
+
+
+def _leaning() -> SimpleNamespace:
+    """A cylinder R8 × 20 with a rod R5 leaning 30° standing on its top face."""
+    root = m3.Manifold.cylinder(20.0, 8.0, 8.0, 48)
+    mat = np.eye(4)[:3]
+    c, s = np.cos(TILT), np.sin(TILT)
+    mat[:, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
+    rod = m3.Manifold.cylinder(30.0, 5.0, 5.0, 48).translate((0, 0, -5)).transform(mat)
+    child = rod.translate((0, 0, 20.0)).trim_by_plane((0, 0, 1.0), 20.0)
+    return _decomposition(root, child, [0, 0, 20.0], [0, 0, 1.0])
+
+
+@pytest.fixture(scope="module")
+def leaning() -> SimpleNamespace:
+    return _leaning()
+
+
+@pytest.fixture(scope="module")
+def leaning_plan(leaning):
+    return plan_print(leaning, S, G, Printhead.default())
+
+
+def test_planar_cylinder_is_flat_exact_and_inside() -> None:
+    plan = plan_planar(to_trimesh(m3.Manifold.cylinder(10.0, 6.0, 6.0, 64)), S, G)
+    (sub,) = plan.subparts
+    assert len(sub.layers) == 50
+    assert sub.thickness_range == pytest.approx((0.2, 0.2))
+    for la in sub.layers:
+        assert (la.a, la.c) == (0.0, 0.0) and np.allclose(la.normal, [0, 0, 1])
+        for p in la.paths:
+            assert np.allclose(p.points[:, 2], la.origin[2])
+            assert np.hypot(p.points[:, 0], p.points[:, 1]).max() <= 6.0 - 0.5 * p.width + 1e-3
+            assert np.allclose(p.height, 0.2)
+    kinds = [{p.kind for p in la.paths} for la in sub.layers]
+    assert all("solid" in k for k in kinds[:3] + kinds[-3:])
+    assert all("infill" in k and "solid" not in k for k in kinds[3:-3])
+    assert sub.layers[0].paths[0].speed == S.first_layer_speed
+
+
+def test_child_layers_turn_from_base_to_axis_within_bounds(leaning_plan) -> None:
+    _root, child = leaning_plan.subparts
+    assert [s.index for s in leaning_plan.subparts] == [0, 1] and child.parent == 0
+    assert np.allclose(child.layers[0].normal, [0, 0, 1])  # flat on the parent
+    assert child.layers[-1].normal @ AXIS > np.cos(np.radians(1.5))  # then along the rod
+    lo, hi = child.thickness_range
+    assert 0.5 * S.layer_height - 1e-9 <= lo and hi <= 1.5 * S.layer_height + 1e-9
+    for la in child.layers:
+        z = machine_direction(la.normal, la.a, la.c)
+        assert np.allclose(z, [0, 0, 1], atol=1e-9)  # A/C turn the build direction up
+        for p in la.paths:
+            assert S.min_layer_factor * 0.2 - 1e-9 <= p.height.min()
+            assert p.height.max() <= S.max_layer_factor * 0.2 + 1e-9
+    c = np.array([la.c for la in child.layers[1:]])
+    assert np.abs(np.diff(c)).max() < 1.0  # C continuity
+
+
+def test_child_paths_stay_inside_the_rod(leaning_plan) -> None:
+    child = leaning_plan.subparts[1]
+    base = np.array([0.0, 0.0, 20.0])
+    for la in child.layers:
+        for p in la.paths:
+            rel = p.points - base
+            r = np.linalg.norm(rel - np.outer(rel @ AXIS, AXIS), axis=1)
+            assert r.max() <= 5.0 - 0.1  # inside the rod with margin (mid-layer sections)
+            assert (p.points[:, 2] >= 20.0).all()
+
+
+def test_bonded_interface(leaning_plan) -> None:
+    root, child = leaning_plan.subparts
+    marked = [la for la in root.layers if la.interface_child == 1]
+    ellipse = shapely.affinity.scale(shapely.Point(0, 0).buffer(1.0, 256), 5.0 / np.cos(TILT), 5.0)
+    # the child's base section (cut mid-first-layer, t/2 up the leaning rod) grown by a width
+    ellipse = shapely.affinity.translate(ellipse, 0.5 * S.layer_height * np.tan(TILT))
+    foot = ellipse.buffer(S.line_width + 1e-3)
+    assert marked and all(la.index >= len(root.layers) - S.interface_layers - 1 for la in marked)
+    assert all(any(p.kind == "interface" for p in la.paths) for la in marked)
+    for p in (p for la in marked for p in la.paths if p.kind == "interface"):
+        assert foot.contains(shapely.points(p.points[:, :2])).all()
+    first = child.layers[0]
+    assert first.first_of_child and not any(la.first_of_child for la in child.layers[1:])
+    assert all(p.flow == S.interface_flow for p in first.paths)
+    assert all(p.speed <= S.interface_speed_factor * S.perimeter_speed + 1e-9
+               or p.speed <= S.interface_speed_factor * S.print_speed + 1e-9
+               for p in first.paths)
+
+
+def test_collision_with_printed_part_is_named() -> None:
+    disc = m3.Manifold.cylinder(5.0, 25.0, 25.0, 48)
+    pillar = m3.Manifold.cylinder(40.0, 4.0, 4.0, 32).translate((-14.0, 0.0, 0.0))
+    child = m3.Manifold.cylinder(10.0, 5.0, 5.0, 48).translate((0.0, 0.0, 5.0))
+    dec = _decomposition(disc + pillar, child, [0, 0, 5.0], [0, 0, 1.0])
+    with pytest.raises(SlicingError, match=r"sub-part 1, layer 0: .*printed part"):
+        plan_print(dec, S, G, Printhead.default())
+    thin = Printhead(((0.0, 50.0, 0.5, 0.5),))  # a needle clears the pillar
+    assert plan_print(dec, S, G, thin).subparts[1].layers
+
+
+def _tilts(plan) -> np.ndarray:
+    return np.degrees(np.arccos(np.clip([la.normal[2] for la in plan.subparts[1].layers],
+                                        -1.0, 1.0)))
+
+
+def test_collision_limits_the_turn(leaning, leaning_plan) -> None:
+    wide = Printhead(((0.0, 0.05, 0.5, 0.5), (0.05, 40.0, 60.0, 60.0)))
+    plan = plan_print(leaning, S, G, wide)
+    # a disc-shaped head would sweep the root's top face: the turn towards the rod is held back
+    free, held = _tilts(leaning_plan), _tilts(plan)
+    n = min(len(free), len(held))
+    assert (held[:n] <= free[:n] + 1e-6).all() and (free[:n] - held[:n]).max() > 3.0
+    root = leaning.subparts[0].mesh.vertices
+    for la in plan.subparts[1].layers:  # and no chosen plane puts the head into the root
+        tips = np.vstack([p.points for p in la.paths])
+        assert not wide.collisions(root, tips, la.normal).any()
+
+
+def test_sample_pipes_plan() -> None:
+    decompose = pytest.importorskip("slicer.decompose")
+    from slicer.samples import pipe2
+
+    dec = decompose.decompose(pipe2(), decompose.DecomposeSettings(), G, Printhead.default())
+    plan = plan_print(dec, S, G, Printhead.default())
+    assert [s.index for s in plan.subparts] == list(dec.order)
+    for sub in plan.subparts:
+        lo, hi = sub.thickness_range
+        assert 0.1 - 1e-9 <= lo and hi <= 0.3 + 1e-9
+        assert all(la.paths for la in sub.layers)
+    root = plan.subparts[0]
+    assert all(la.a == 0.0 for la in root.layers)
+    assert any(la.interface_child is not None for la in root.layers)
+    assert set(plan.timings) >= {"skeleton", "layers", "zones", "toolpaths"}
