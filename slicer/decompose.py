@@ -15,6 +15,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import manifold3d as m3
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
@@ -35,7 +36,8 @@ from slicer.planes import (
     verify_base,
 )
 from slicer.printhead import Printhead
-from slicer.split import split_piece
+from slicer.samples import to_manifold, to_trimesh
+from slicer.split import search_proxy, split_piece, split_solid
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -181,12 +183,13 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     except ValueError as exc:
         raise DecompositionError(str(exc)) from None
     clock.lap("build_order")
-    subparts = _cut_all(mesh, part, groups, settings, machine, head)
+    solid = to_manifold(mesh)
+    subparts = _cut_all(mesh, solid, part, groups, settings, machine, head)
     clock.lap("planes_split")
     _verify(subparts, machine, head)
     clock.lap("verify")
     return Decomposition(np.asarray(placement, dtype=float), subparts, groups.order,
-                         float(mesh.volume), clock.laps, part.count, part.k_requested, part,
+                         float(solid.volume()), clock.laps, part.count, part.k_requested, part,
                          groups)
 
 
@@ -201,13 +204,19 @@ class _Clock:
         self.t = now
 
 
-def _cut_all(mesh: trimesh.Trimesh, part: Partition, groups: Groups,
+def _cut_all(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition, groups: Groups,
              settings: DecomposeSettings, machine: MachineGeometry,
              head: Printhead) -> list[Subpart]:
-    """Cut every group from its parent's piece, in build order."""
+    """Cut every group from its parent's piece, in build order.
+
+    Planes are searched on a simplified proxy of each piece (:func:`search_proxy`; the piece
+    itself when it is small); every plane then cuts the full-resolution solid once.
+    """
     face_group = groups.region_group[part.labels]
     tree = cKDTree(part.mesh.triangles_center)
-    pieces: dict[int, trimesh.Trimesh] = {0: mesh}
+    solids = {0: solid}
+    proxy = search_proxy(mesh, solids[0])
+    pieces: dict[int, trimesh.Trimesh] = {0: proxy}
     on_base = (mesh.face_normals[:, 2] < -0.999) & (np.abs(mesh.triangles_center[:, 2]) < 1e-3)
     base_area = float(mesh.area_faces[on_base].sum())
     subparts: dict[int, Subpart] = {0: Subpart(0, None, mesh, None, base_area, UP)}
@@ -221,11 +230,15 @@ def _cut_all(mesh: trimesh.Trimesh, part: Partition, groups: Groups,
         ctx = PieceContext(piece, region, _samples(others, settings.seed), head,
                            machine.a_limits, settings.seed)
         check, its = _find_plane(ctx, part, face_group, groups, g, pg, settings, rng)
-        child, rest = split_piece(piece, check.plane, check.child_faces)
-        pieces[pg], pieces[g] = rest, child
-        subparts[g] = Subpart(g, pg, child, check.plane, check.area, check.plane.normal, its)
+        child, rest = split_solid(solids[pg], check.plane, piece, check.child_faces)
+        solids[pg], solids[g] = rest, child
+        if proxy is mesh:
+            pieces[pg], pieces[g] = to_trimesh(rest), to_trimesh(child)
+        else:
+            pieces[g], pieces[pg] = split_piece(piece, check.plane, check.child_faces)
+        subparts[g] = Subpart(g, pg, mesh, check.plane, check.area, check.plane.normal, its)
     for g, s in subparts.items():
-        s.mesh = pieces[g]
+        s.mesh = pieces[g] if proxy is mesh else to_trimesh(solids[g])
     return [subparts[g] for g in sorted(subparts)]
 
 

@@ -125,13 +125,21 @@ def repair(mesh: trimesh.Trimesh, name: str = "<mesh>") -> trimesh.Trimesh:
     mesh.remove_unreferenced_vertices()
     if len(mesh.faces) == 0:
         raise MeshError(f"{name}: all triangles are degenerate")
-    trimesh.repair.fix_normals(mesh)
+    _fix_orientation(mesh)
     if not mesh.is_watertight:
         open_edges = len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1))
         raise MeshError(f"{name}: not watertight after repair ({open_edges} open edges)")
     if not mesh.is_winding_consistent or mesh.volume <= 0:
         raise MeshError(f"{name}: not a closed solid (inconsistent winding or no volume)")
     return mesh
+
+
+def _fix_orientation(mesh: trimesh.Trimesh) -> None:
+    """Consistent outward winding (in place); the costly re-winding only when needed."""
+    if not mesh.is_winding_consistent:
+        trimesh.repair.fix_winding(mesh)
+    if mesh.is_watertight and mesh.volume < 0:
+        mesh.invert()
 
 
 def find_base(mesh: trimesh.Trimesh) -> tuple[np.ndarray, float, np.ndarray]:

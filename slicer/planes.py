@@ -48,6 +48,8 @@ SAMPLE_SPACING = 1.0  # mm between obstacle surface samples
 CHILD_SHARE = 0.5  # a positive component is the child's when this share of it is child region
 KEEP_SHARE = 0.3  # the child must keep this share of its coarse region on the positive side
 PLATFORM_TOL = 1e-6  # mm
+PROXY_FACES = 12_000  # the plane search runs on a simplified copy of pieces with more faces
+PROXY_TOLERANCES = (0.01, 0.05, 0.2)  # mm, tried in turn; all far below SAMPLE_SPACING
 
 
 class PlaneSearchError(ValueError):

@@ -27,8 +27,16 @@ def to_trimesh(solid: m3.Manifold) -> trimesh.Trimesh:
     """A manifold3d solid as a trimesh (float64 vertices, outward winding)."""
     mesh = solid.to_mesh64()
     verts = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
-    # manifold3d already shares vertices; trimesh's merge could weld distinct close ones.
-    return trimesh.Trimesh(verts, np.asarray(mesh.tri_verts, dtype=np.int64), process=False)
+    faces = np.asarray(mesh.tri_verts, dtype=np.int64)
+    # manifold3d shares vertices except across property seams (e.g. a cut face), which it
+    # lists in its merge vectors; trimesh's merge could weld distinct close ones, so use those.
+    merge_from = np.asarray(mesh.merge_from_vert, dtype=np.int64)
+    if len(merge_from):
+        remap = np.arange(len(verts))
+        remap[merge_from] = np.asarray(mesh.merge_to_vert, dtype=np.int64)
+        used, faces = np.unique(remap[faces], return_inverse=True)
+        verts, faces = verts[used], faces.reshape(-1, 3)
+    return trimesh.Trimesh(verts, faces, process=False)
 
 
 def to_manifold(mesh: trimesh.Trimesh) -> m3.Manifold:

@@ -3,6 +3,10 @@
 The child is the union of the positive-side components that hold the child's faces; every
 other positive-side component (for example the top of the main tube that a branch's plane also
 crosses) stays with the parent, which is the negative side plus those components.
+
+The solid that is cut need not be the mesh the child's faces were found on: the plane search
+runs on a simplified proxy (:func:`search_proxy`) and :func:`split_solid` cuts the
+full-resolution solid, telling the child's components apart by the proxy's labels.
 """
 
 from __future__ import annotations
@@ -12,8 +16,75 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from slicer.planes import EPS, Plane
+from slicer.planes import EPS, PROXY_FACES, PROXY_TOLERANCES, Plane
 from slicer.samples import to_manifold, to_trimesh
+
+
+def search_proxy(mesh: trimesh.Trimesh, solid: m3.Manifold) -> trimesh.Trimesh:
+    """A coarser copy of ``mesh`` for the plane search (``mesh`` itself when small).
+
+    The solid is simplified with growing tolerances (:data:`PROXY_TOLERANCES`, all well
+    below the obstacle sample margin) until it has at most :data:`PROXY_FACES` faces; the
+    last one is used when none gets there.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Watertight part, (n,) faces.
+    solid : manifold3d.Manifold
+        The same part as a manifold.
+    """
+    if len(mesh.faces) <= PROXY_FACES:
+        return mesh
+    proxy = solid
+    for tol in PROXY_TOLERANCES:
+        proxy = solid.simplify(tol)
+        if proxy.num_tri() <= PROXY_FACES:
+            break
+    return to_trimesh(proxy)
+
+
+def split_solid(solid: m3.Manifold, plane: Plane, labels: trimesh.Trimesh,
+                child_faces: np.ndarray) -> tuple[m3.Manifold, m3.Manifold]:
+    """Cut ``solid`` by ``plane`` into (child, rest) as manifolds.
+
+    Parameters
+    ----------
+    solid : manifold3d.Manifold
+        The piece to cut.
+    plane : Plane
+        Normal into the child.
+    labels : trimesh.Trimesh
+        The same piece (possibly a simplified proxy), (m,) faces.
+    child_faces : (m,) bool
+        Faces of ``labels`` whose positive part belongs to the child.
+
+    Raises
+    ------
+    ValueError
+        Nothing of the child is on the positive side.
+    """
+    offset = float(plane.point @ plane.normal)
+    # trim_by_plane twice, not split_by_plane: the latter's halves share their cut vertices,
+    # and a union of its negative half with a positive component leaves them unwelded.
+    pos = solid.trim_by_plane(plane.normal, offset)
+    neg = solid.trim_by_plane(-plane.normal, -offset)
+    h = plane.signed(labels.vertices)
+    flags = np.zeros(len(labels.vertices), dtype=bool)
+    flags[labels.faces[child_faces].ravel()] = True
+    up = h > EPS
+    tree = cKDTree(labels.vertices[up]) if up.any() else None
+    child, rest = [], [neg]
+    for comp in pos.decompose():
+        verts = np.asarray(comp.to_mesh64().vert_properties)[:, :3]
+        verts = verts[plane.signed(verts) > EPS]
+        votes = flags[up][tree.query(verts)[1]] if len(verts) and tree is not None else [False]
+        (child if np.mean(votes) > 0.5 else rest).append(comp)
+    if not child:
+        raise ValueError("the plane leaves nothing of the child on its positive side")
+    # the child's components are disjoint; the rest's touch the negative side on the plane
+    whole = rest[0] if len(rest) == 1 else m3.Manifold.batch_boolean(rest, m3.OpType.Add)
+    return m3.Manifold.compose(child) if len(child) > 1 else child[0], whole
 
 
 def split_piece(piece: trimesh.Trimesh, plane: Plane, child_faces: np.ndarray
@@ -23,7 +94,7 @@ def split_piece(piece: trimesh.Trimesh, plane: Plane, child_faces: np.ndarray
     Parameters
     ----------
     piece : trimesh.Trimesh
-        Watertight solid.
+        Watertight solid, (m,) faces.
     plane : Plane
         Normal into the child.
     child_faces : (m,) bool
@@ -34,22 +105,5 @@ def split_piece(piece: trimesh.Trimesh, plane: Plane, child_faces: np.ndarray
     child, rest : trimesh.Trimesh
         Watertight; their volumes sum to the piece's.
     """
-    solid = to_manifold(piece)
-    offset = float(plane.point @ plane.normal)
-    pos = solid.trim_by_plane(plane.normal, offset)
-    neg = solid.trim_by_plane(-plane.normal, -offset)
-    h = plane.signed(piece.vertices)
-    flags = np.zeros(len(piece.vertices), dtype=bool)
-    flags[piece.faces[child_faces].ravel()] = True
-    up = h > EPS
-    tree = cKDTree(piece.vertices[up])
-    child, rest = [], [neg]
-    for comp in pos.decompose():
-        verts = np.asarray(comp.to_mesh64().vert_properties)[:, :3]
-        verts = verts[plane.signed(verts) > EPS]
-        votes = flags[up][tree.query(verts)[1]] if len(verts) and up.any() else [False]
-        (child if np.mean(votes) > 0.5 else rest).append(comp)
-    if not child:
-        raise ValueError("the plane leaves nothing of the child on its positive side")
-    return (to_trimesh(m3.Manifold.batch_boolean(child, m3.OpType.Add)),
-            to_trimesh(m3.Manifold.batch_boolean(rest, m3.OpType.Add)))
+    child, rest = split_solid(to_manifold(piece), plane, piece, child_faces)
+    return to_trimesh(child), to_trimesh(rest)
