@@ -3,8 +3,12 @@
 For a unit direction d = (dx, dy, dz) in the platform frame with azimuth φ = atan2(dy, dx),
 ``Rx(A) Rz(C) d = +Z`` has exactly two solutions away from the singularity:
 
-* A = +arccos(dz), C = 90° − φ  (C swings d onto +Y, then A tilts it up), and
-* A = −arccos(dz), C = −90° − φ.
+* A = +θ, C = 90° − φ  (C swings d onto +Y, then A tilts it up), and
+* A = −θ, C = −90° − φ,
+
+where θ = atan2(√(dx² + dy²), dz) is the tilt from vertical (the paper's eq. 7 writes it as
+arccos(dz), which loses all precision for nearly vertical directions; its eq. 8, arctan(dy/dx),
+loses the quadrant).
 
 At the singularity (d vertical, A = 0) every C works: the current C is kept, so a straight
 vertical part never makes the table spin.
@@ -40,7 +44,7 @@ def orientation_solutions(direction: ArrayLike) -> tuple[Pose, Pose] | None:
     rho = math.hypot(d[0], d[1])
     if rho < SINGULAR_EPS:
         return None
-    tilt = math.degrees(math.acos(max(-1.0, min(1.0, d[2]))))
+    tilt = math.degrees(math.atan2(rho, d[2]))  # exact near vertical, unlike acos(dz)
     phi = math.degrees(math.atan2(d[1], d[0]))
     return (tilt, _wrap(90.0 - phi)), (-tilt, _wrap(-90.0 - phi))
 
@@ -107,7 +111,7 @@ def _vertical(d: np.ndarray, geometry: MachineGeometry, current_c: float) -> Pos
 
 
 def _unreachable(d: np.ndarray, geometry: MachineGeometry) -> UnreachableDirection:
-    tilt = math.degrees(math.acos(max(-1.0, min(1.0, d[2]))))
+    tilt = math.degrees(math.atan2(math.hypot(d[0], d[1]), d[2]))
     dirn = "[" + ", ".join(f"{x:.4g}" for x in d) + "]"
     lims = f"A limits [{geometry.a_limits[0]:g}, {geometry.a_limits[1]:g}]°"
     if geometry.c_limits is not None:
@@ -132,8 +136,7 @@ def reachable_mask(directions: ArrayLike, a_limits: tuple[float, float]) -> np.n
     d = np.asarray(directions, dtype=float).reshape(-1, 3)
     norm = np.linalg.norm(d, axis=1)
     ok = np.isfinite(norm) & (norm > 0)
-    cosz = np.divide(d[:, 2], norm, out=np.zeros(len(d)), where=ok)
-    tilt = np.degrees(np.arccos(np.clip(cosz, -1.0, 1.0)))
+    tilt = np.degrees(np.arctan2(np.hypot(d[:, 0], d[:, 1]), d[:, 2]))
     lo, hi = a_limits
     fits = ((tilt >= lo - 1e-9) & (tilt <= hi + 1e-9)) | ((-tilt >= lo - 1e-9) &
                                                           (-tilt <= hi + 1e-9))
