@@ -1,28 +1,40 @@
 """Daemon performance: idle RSS, CPU while streaming at 250000 baud, printer.status latency.
 
-Run: ``.venv/bin/python bench/daemon.py`` (``make bench``). Starts hostd on the built-in
-emulator (``sim://``, wire throttled to 250000 baud), measures RSS when idle, then streams a
-G-code job and measures the daemon's CPU share and ``printer.status`` round trips meanwhile.
-The emulator runs inside the daemon process, so the CPU figure includes it (an upper bound).
-Targets: RSS < 80 MB idle, streaming CPU < 10 % of a core, status p99 < 10 ms.
+Run: ``.venv/bin/python bench/daemon.py`` (``make bench``). By default the emulator runs in a
+process of its own behind a pseudo-terminal (``bench/daemon.py --emulator-pty``, the wire
+throttled to 250000 baud), so the daemon's CPU share is its own: link, streamer, job manager,
+control server. ``--in-process`` uses ``sim://`` instead (emulator inside the daemon: the old,
+upper-bound figure). ``--profile FILE`` runs the daemon under cProfile and writes its stats.
+
+It measures RSS when idle, then streams a G-code job and measures the CPU shares and
+``printer.status`` round trips of a client polling at ~20 Hz meanwhile.
+Targets: RSS < 80 MB idle, daemon streaming CPU < 10 % of a core, status p99 < 10 ms.
 """
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import json
 import os
+import signal
 import statistics
 import sys
 import tempfile
 import time
+import tty
+from collections import deque
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
-from hostd.demo import synthetic_gcode
+from hostd.demo import synthetic_gcode  # noqa: E402
 
 TARGETS = {"idle_rss_mb": 80.0, "stream_cpu_pct": 10.0, "status_p99_ms": 10.0}
+BAUD = 250000
+READY = "ready (socket"
+SETTLE_S = 2.0  # idle time before the RSS figure
 
 
 def rss_mb(pid: int) -> float:
@@ -37,75 +49,186 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-async def call(r: asyncio.StreamReader, w: asyncio.StreamWriter, method: str, **params: object
-               ) -> dict:
-    w.write(json.dumps({"jsonrpc": "2.0", "id": 1, "method": method,
-                        "params": params}).encode() + b"\n")
-    await w.drain()
-    while True:
-        msg = json.loads(await r.readline())
-        if msg.get("id") == 1:
-            return msg
+# -- the emulator on a pty (a separate process) ---------------------------------------------
 
 
-async def bench(tmp: Path) -> dict[str, float]:
-    sock = tmp / "hostd.sock"
+class PtyBoard:
+    """The emulator on the master side of a pty; writes are buffered, never blocking."""
+
+    def __init__(self, baud: int) -> None:
+        from hostd.sim.server import Emulator
+        from hostd.sim.settings import SimSettings
+
+        self.master, self.slave = os.openpty()  # the slave stays open: no EIO on reopen
+        tty.setraw(self.slave)
+        os.set_blocking(self.master, False)
+        self.loop = asyncio.get_running_loop()
+        self.out = bytearray()
+        self.emulator = Emulator(SimSettings(baud=baud, throttle=True), self._write)
+        self.loop.add_reader(self.master, self._read)
+
+    @property
+    def path(self) -> str:
+        return os.ttyname(self.slave)
+
+    def _read(self) -> None:
+        try:
+            data = os.read(self.master, 65536)
+        except BlockingIOError:
+            return
+        self.emulator.feed(data)
+
+    def _write(self, data: bytes) -> None:
+        if not self.out:
+            self.loop.add_writer(self.master, self._flush)
+        self.out += data
+
+    def _flush(self) -> None:
+        try:
+            n = os.write(self.master, self.out)
+        except BlockingIOError:
+            return
+        del self.out[:n]
+        if not self.out:
+            self.loop.remove_writer(self.master)
+
+
+async def emulator_main(baud: int) -> None:
+    board = PtyBoard(baud)
+    stop = asyncio.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        board.loop.add_signal_handler(sig, stop.set)
+    print(board.path, flush=True)
+    await stop.wait()
+    board.emulator.close()
+
+
+# -- the benchmark ----------------------------------------------------------------------------
+
+
+class Client:
+    def __init__(self, r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+        self.r, self.w = r, w
+
+    async def call(self, method: str, **params: object) -> dict:
+        self.w.write(json.dumps({"jsonrpc": "2.0", "id": 1, "method": method,
+                                 "params": params}).encode() + b"\n")
+        await self.w.drain()
+        while True:
+            msg = json.loads(await self.r.readline())
+            if msg.get("id") == 1:
+                return msg["result"]
+
+
+async def spawn_emulator() -> tuple[asyncio.subprocess.Process, str]:
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, __file__, "--emulator-pty", stdout=asyncio.subprocess.PIPE)
+    assert proc.stdout is not None
+    path = (await proc.stdout.readline()).decode().strip()
+    if not path:
+        raise RuntimeError("the emulator did not start")
+    return proc, path
+
+
+async def spawn_daemon(tmp: Path, port: str, profile: str | None
+                       ) -> tuple[asyncio.subprocess.Process, asyncio.Task[None]]:
     cfg = tmp / "hostd.yaml"
     cfg.write_text(json.dumps({
-        "daemon": {"socket": str(sock), "state_dir": str(tmp / "state"), "log_level": "warning"},
-        "metrics": {"enabled": False}, "serial": {"port": "sim://", "baud": 250000},
+        "daemon": {"socket": str(tmp / "hostd.sock"), "state_dir": str(tmp / "state"),
+                   "log_level": "info"},
+        "metrics": {"enabled": False}, "serial": {"port": port, "baud": BAUD},
         "sim": {"throttle": True}}))
+    prof = ["-m", "cProfile", "-o", profile] if profile else []
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "hostd.main", "--config", str(cfg), stderr=asyncio.subprocess.PIPE)
+        sys.executable, *prof, "-m", "hostd.main", "--config", str(cfg),
+        stderr=asyncio.subprocess.PIPE, cwd=str(ROOT))
     assert proc.stderr is not None
-    # the ready line is logged at info; at warning level wait for the socket via a connect
-    r = w = None
-    for _ in range(200):
-        try:
-            r, w = await asyncio.open_unix_connection(str(sock))
-            break
-        except OSError:
-            await asyncio.sleep(0.05)  # start-up wait in a benchmark, not a test
-    assert r is not None and w is not None
-    await call(r, w, "server.info")
-    await asyncio.sleep(2.0)  # let the daemon settle before the idle figure
-    out = {"idle_rss_mb": rss_mb(proc.pid)}
+    log: deque[str] = deque(maxlen=50)
+    while READY not in (line := (await proc.stderr.readline()).decode()):
+        if not line:
+            raise RuntimeError("hostd exited:\n" + "".join(log))
+        log.append(line)
+    return proc, asyncio.create_task(_drain(proc.stderr, log))
+
+
+async def _drain(stream: asyncio.StreamReader, log: deque[str]) -> None:
+    while line := await stream.readline():
+        log.append(line.decode())
+
+
+async def stream_and_poll(c: Client, pids: dict[str, int]) -> dict[str, float]:
     text = synthetic_gcode(subparts=3, layers=40, per_layer=200)
-    job = (await call(r, w, "job.submit", name="bench.gcode", data=text,
-                      encoding="text"))["result"]
-    await asyncio.sleep(0.5)
-    c0, t0 = cpu_seconds(proc.pid), time.monotonic()
-    lat = []
+    job = await c.call("job.submit", name="bench.gcode", data=text, encoding="text")
+    await asyncio.sleep(0.5)  # let streaming reach its steady state
+    c0 = {k: cpu_seconds(p) for k, p in pids.items()}
+    t0 = time.monotonic()
+    lat: list[float] = []
+    acked: list[int] = []
     while True:
         s = time.perf_counter()
-        status = (await call(r, w, "printer.status"))["result"]
+        status = await c.call("printer.status")
         lat.append((time.perf_counter() - s) * 1000)
         cur = status["jobs"]["current"]
         if cur is None or cur["progress"] > 0.9 or len(lat) >= 2000:
             break
+        acked.append(cur["acked"])
         await asyncio.sleep(0.05)  # a client polling status at ~20 Hz
-    c1, t1 = cpu_seconds(proc.pid), time.monotonic()
+    t1 = time.monotonic()
     lat.sort()
-    out.update(stream_cpu_pct=100 * (c1 - c0) / (t1 - t0),
-               status_p50_ms=statistics.median(lat),
-               status_p99_ms=lat[int(0.99 * (len(lat) - 1))],
-               streamed_s=t1 - t0, status_calls=len(lat), job=job["id"],
-               lines=job["total_lines"])
-    w.close()
-    proc.terminate()
-    await proc.wait()
+    out = {f"{k}_cpu_pct": 100 * (cpu_seconds(p) - c0[k]) / (t1 - t0) for k, p in pids.items()}
+    out.update(status_p50_ms=statistics.median(lat),
+               status_p99_ms=lat[int(0.99 * (len(lat) - 1))], streamed_s=t1 - t0,
+               lines_per_s=(acked[-1] - acked[0]) / (t1 - t0) if acked else float("nan"),
+               status_calls=len(lat), lines=job["total_lines"])
+    return out
+
+
+async def bench(tmp: Path, in_process: bool, profile: str | None) -> dict[str, float]:
+    emu = None
+    port = "sim://"
+    if not in_process:
+        emu, port = await spawn_emulator()
+    proc, drain = await spawn_daemon(tmp, port, profile)
+    try:
+        r, w = await asyncio.open_unix_connection(str(tmp / "hostd.sock"))
+        c = Client(r, w)
+        await c.call("server.info")
+        await asyncio.sleep(SETTLE_S)  # let the daemon settle before the idle figure
+        out = {"idle_rss_mb": rss_mb(proc.pid)}
+        pids = {"stream": proc.pid} | ({"emulator": emu.pid} if emu else {})
+        out |= await stream_and_poll(c, pids)
+        w.close()
+    finally:
+        proc.send_signal(signal.SIGINT if profile else signal.SIGTERM)
+        await proc.wait()
+        await drain
+        if emu is not None:
+            emu.terminate()
+            await emu.wait()
     return out
 
 
 def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--in-process", action="store_true",
+                    help="emulator inside the daemon (sim://): CPU includes the emulator")
+    ap.add_argument("--profile", metavar="FILE", help="run hostd under cProfile, stats to FILE")
+    ap.add_argument("--emulator-pty", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.emulator_pty:
+        asyncio.run(emulator_main(BAUD))
+        return 0
     with tempfile.TemporaryDirectory(prefix="hostd-bench-") as name:
-        res = asyncio.run(bench(Path(name)))
+        res = asyncio.run(bench(Path(name), args.in_process, args.profile))
+    mode = "in-process sim:// (CPU includes the emulator)" if args.in_process else \
+        "emulator in its own process on a pty"
+    print(f"hostd daemon bench, {BAUD} baud, {mode}")
     for key, value in res.items():
         target = TARGETS.get(key)
         mark = "" if target is None else (" ok" if value < target else " OVER TARGET")
-        print(f"{key:16} {value:10.2f}{'' if target is None else f'  (target < {target:g})'}"
+        print(f"{key:18} {value:10.2f}{'' if target is None else f'  (target < {target:g})'}"
               f"{mark}")
-    return 0 if all(res[k] < v for k, v in TARGETS.items()) else 1
+    return 0 if all(res[k] < v for k, v in TARGETS.items() if k in res) else 1
 
 
 if __name__ == "__main__":

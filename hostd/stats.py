@@ -31,9 +31,13 @@ class Buckets:
         self.n += 1
 
     def snapshot(self) -> dict[str, object]:
-        """``{"buckets": [[le, cumulative], ...], "sum": s, "count": n}`` with le "+Inf" last."""
+        """``{"buckets": [[le, cumulative], ...], "sum": s, "count": n}`` with le "+Inf" last.
+
+        The last bound is the string ``"+Inf"`` so that the snapshot stays plain JSON.
+        """
         cum, out = 0, []
-        for bound, c in zip([*self.bounds, float("inf")], self.counts, strict=True):
+        bounds: list[float | str] = [*self.bounds, "+Inf"]
+        for bound, c in zip(bounds, self.counts, strict=True):
             cum += c
             out.append([bound, cum])
         return {"buckets": out, "sum": self.total, "count": self.n}

@@ -77,9 +77,15 @@ def _labelled(spec: Spec, value: Mapping[str, Any]) -> Iterator[tuple[str, Any]]
 def _histogram_family(spec: Spec, value: Any) -> Metric | None:
     if not isinstance(value, Mapping) or "buckets" not in value:
         return None
-    buckets = [("+Inf" if math.isinf(le) else f"{le:g}", float(n)) for le, n in value["buckets"]]
+    buckets = [(_le(le), float(n)) for le, n in value["buckets"]]
     return HistogramMetricFamily(spec.name, spec.doc, buckets=buckets,
                                  sum_value=float(value.get("sum", 0.0)), unit=spec.unit)
+
+
+def _le(bound: float | str) -> str:
+    if isinstance(bound, str) or math.isinf(bound):
+        return "+Inf"
+    return f"{bound:g}"
 
 
 def _info_family(spec: Spec, value: Any) -> Metric | None:

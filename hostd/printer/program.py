@@ -7,6 +7,7 @@ index of the next command, so progress, checkpoints and resume points are comman
 
 from __future__ import annotations
 
+import bisect
 import json
 from dataclasses import dataclass, field
 from typing import Any
@@ -48,25 +49,28 @@ class Program:
     parents: dict[int, int | None] = field(default_factory=dict)
     transitions: list[Transition] = field(default_factory=list)
     estimate: dict[str, float] = field(default_factory=dict)
+    _starts: list[int] = field(default_factory=list, repr=False, compare=False)
+    _by_start: dict[int, Transition] = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def total(self) -> int:
         return len(self.commands)
 
     def transition_at(self, index: int) -> Transition | None:
-        for t in self.transitions:
-            if t.start == index:
-                return t
-        return None
+        """The transition block starting at command ``index`` (a dict look-up per line)."""
+        if len(self._by_start) != len(self.transitions):
+            self._by_start = {t.start: t for t in self.transitions}
+        return self._by_start.get(index)
 
     def layer_at(self, index: int) -> LayerMark | None:
-        """The layer that command ``index`` belongs to (``None`` before the first)."""
-        found = None
-        for mark in self.layers:
-            if mark.index > index:
-                break
-            found = mark
-        return found
+        """The layer that command ``index`` belongs to (``None`` before the first).
+
+        A binary search over the layer starts (the streamer asks for every acked line).
+        """
+        if len(self._starts) != len(self.layers):
+            self._starts = [mark.index for mark in self.layers]
+        k = bisect.bisect_right(self._starts, index)
+        return self.layers[k - 1] if k else None
 
     def resume_index(self, index: int, scope: str) -> int:
         """Where to restart when ``index`` was interrupted: start of its ``layer`` or
