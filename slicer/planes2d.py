@@ -32,6 +32,7 @@ class Tolerances:
     min_area: float = 1e-4  # polygons smaller than this (mm²) are dropped
     min_path: float = 1e-3  # paths shorter than this are dropped
     contain: float = 1e-6  # containment slack of generated paths
+    simplify: float = 0.01  # section outline simplification, mm (≪ line width)
     same: float = 1e-6  # vertex tolerance of "the same polygon" in consecutive layers, mm
     straight_rel: float = 0.03  # skeleton deviation / length below which a part is straight
     straight_abs: float = 0.5  # ... or below this absolute deviation
@@ -165,13 +166,17 @@ def _signed_area(ring: np.ndarray) -> float:
 def section(solid: m3.Manifold, origin: ArrayLike, frame: np.ndarray) -> BaseGeometry:
     """The cross-section of ``solid`` by the plane (origin, frame[2]) in the plane's 2D frame.
 
+    Simplified by :data:`TOL.simplify` (Douglas–Peucker, topology kept): a finely tessellated
+    STL gives hundreds of vertices per circle, which every later boolean pays for.
+
     Returns
     -------
     shapely Polygon or MultiPolygon
         Possibly empty.
     """
     mat = np.hstack([frame, -(frame @ np.asarray(origin, dtype=float)).reshape(3, 1)])
-    return cross_section_polygons(solid.transform(mat).slice(0.0))
+    region = cross_section_polygons(solid.transform(mat).slice(0.0))
+    return polygonal(shapely.simplify(region, TOL.simplify)) if TOL.simplify > 0 else region
 
 
 def map_between(geom: BaseGeometry, src: tuple[np.ndarray, np.ndarray],

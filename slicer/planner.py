@@ -62,7 +62,11 @@ class _Machine:
     pose: tuple[float, float] = (0.0, 0.0)
     fixed: bool = False  # planar control: A = C = 0 always
     parts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # earlier sub-parts
-    own: list[np.ndarray] = field(default_factory=list)  # outlines of this sub-part's layers
+    own: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # this part's outlines
+
+    def printed(self, outline: np.ndarray) -> None:
+        """Add a printed layer's outline samples to the obstacles."""
+        self.own = np.vstack([self.own, outline])
 
     def accept(self, origin: np.ndarray, frame: np.ndarray, region: BaseGeometry) -> str | None:
         """None if the plane can be printed, else the name of what is in the way."""
@@ -80,12 +84,12 @@ class _Machine:
         drop = self.head.lowest_point(origin, n) - origin[2]
         if len(tips) and tips[:, 2].min() + drop < -1e-9:
             return "platform"
-        obstacles = np.vstack([self.parts, *self.own]) if self.own else self.parts
-        h = (obstacles - origin) @ n
-        near = obstacles[(h > 1e-9) & (np.linalg.norm(obstacles - origin, axis=1)
-                                       < self.head.reach + _radius(tips, origin))]
-        if len(near) and self.head.collisions(near, tips, n).any():
-            return "printed part"
+        reach = self.head.reach + _radius(tips, origin)
+        for obstacles in (self.parts, self.own):
+            above = obstacles[obstacles @ n > origin @ n + 1e-9]
+            near = above[np.einsum("ij,ij->i", above - origin, above - origin) < reach**2]
+            if len(near) and self.head.collisions(near, tips, n).any():
+                return "printed part"
         return None
 
 
@@ -99,6 +103,9 @@ def _outline(region: BaseGeometry, origin: np.ndarray, frame: np.ndarray,
     if region.is_empty:
         return np.zeros((0, 3))
     xy = shapely.get_coordinates(shapely.segmentize(region.boundary, spacing))
+    step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    keep = np.r_[0, np.flatnonzero(np.diff(np.floor(np.cumsum(step) / spacing))) + 1]
+    xy = xy[keep]  # about one sample per ``spacing`` along the outline
     return from_plane(xy, origin, frame)
 
 
@@ -182,7 +189,7 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
         curve = _curve(mesh, centre, base[1])
     timer.lap("skeleton")
     poses: list[tuple[float, float]] = []
-    machine.subpart, machine.own = index, []
+    machine.subpart, machine.own = index, np.zeros((0, 3))
 
     def accept(origin: np.ndarray, frame: np.ndarray, region: BaseGeometry) -> str | None:
         return machine.accept(origin, frame, region)
@@ -192,7 +199,7 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
         layers.append(layer)
         poses.append(machine.pose)
         machine.c = machine.pose[1]
-        machine.own.append(_outline(layer.region, layer.origin, layer.frame, OBSTACLE_SPACING))
+        machine.printed(_outline(layer.region, layer.origin, layer.frame, OBSTACLE_SPACING))
     timer.lap("layers")
     return layers, poses
 

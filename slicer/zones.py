@@ -1,7 +1,10 @@
 """Solid zones of curved layers: areas exposed within ``solid_layers`` below or above.
 
-Layer i's zone is the part of its region not covered by *every* one of the k layers below it
-(bottom skin) or by every one of the k layers above it (top skin): R − (∩below ∩ ∩above).
+Layer i's zone is the part of its region R_i not covered by the layers below it (bottom skin)
+or above it (top skin): R_i − ∩_{j ∈ {i−k, i−1, i+1, i+k}} R_j, k = ``solid_layers``. Checking the
+adjacent and the k-th neighbours (not all 2k) halves the polygon booleans, which dominate this
+stage; it misses only a feature that appears and vanishes again within k layers. A missing
+neighbour (past the top; below the root's first layer) makes the whole region solid.
 Neighbouring regions live in other (slightly turned) planes; they are projected orthogonally
 into layer i's frame with an affine map (:func:`slicer.planes2d.map_between`), exact for
 parallel planes and within ρ·(1 − cos Δθ) otherwise.
@@ -22,7 +25,7 @@ from slicer.layers import LayerPlane
 from slicer.planes2d import TOL, map_between, polygonal
 
 
-def _neighbours(layers: Sequence[LayerPlane], i: int, js: range,
+def _neighbours(layers: Sequence[LayerPlane], i: int, js: Sequence[int],
                 open_end: bool) -> list[BaseGeometry] | None:
     """Regions ``js`` mapped into layer i; None if one is missing (nothing there)."""
     dst = (layers[i].origin, layers[i].frame)
@@ -71,8 +74,8 @@ def solid_zones(layers: Sequence[LayerPlane], k: int, grounded: bool) -> list[Ba
         if k <= 0:
             out.append(shapely.Polygon())
             continue
-        below = _neighbours(layers, i, range(i - k, i), open_end=not grounded)
-        above = _neighbours(layers, i, range(i + 1, i + k + 1), open_end=False)
+        below = _neighbours(layers, i, sorted({i - k, i - 1}), open_end=not grounded)
+        above = _neighbours(layers, i, sorted({i + 1, i + k}), open_end=False)
         both = None if below is None or above is None else below + above
         out.append(exposed(layer.region, both))
     return out
