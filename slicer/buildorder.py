@@ -23,6 +23,7 @@ MERGE_ANGLE = 25.0  # degrees between a region's axis and its group's direction
 TUBULAR_RATIO = 0.35  # λ_min / λ_mid of the normal covariance below which a region has an axis
 OVERHANG_COS = np.cos(np.radians(50.0))  # n·(-d) above this: a face overhangs direction d
 OVERHANG_SHARE = 0.02  # a region prints along d when less of its area overhangs
+COAXIAL_SHARE = 0.5  # bore/outside of one tube: centres within this share of the patch radius
 SWEEP_RATIO = 0.25  # λ_mid / λ_max above which its normals sweep around that axis
 
 
@@ -132,6 +133,7 @@ def group_regions(part: Partition, root: int, merge_angle: float = MERGE_ANGLE) 
     while (group < 0).any():
         _grow_aligned(group, gdir, adjacency, axes, tubular, cos_max, part)
         _absorb_axisless(group, adjacency, tubular)
+        _join_coaxial(group, np.asarray(gdir), axes, tubular, centres, part.areas(), cos_max)
         free = group < 0
         if not free.any():
             break
@@ -175,6 +177,31 @@ def _grow_aligned(group: np.ndarray, gdir: list[np.ndarray], adjacency: np.ndarr
                     group[r] = g
                     changed = True
                     break
+
+
+def _join_coaxial(group: np.ndarray, gdir: np.ndarray, axes: np.ndarray, tubular: np.ndarray,
+                  centres: np.ndarray, areas: np.ndarray, cos_max: float) -> None:
+    """A free tubular region joins the group of a grouped tubular region on the same axis
+    nearby (in place): the bore and the outside of one hollow tube share no edge, only the
+    wall between them, so adjacency alone never puts them together.
+
+    Both axes must be within the merge angle of each other and of the group's direction
+    ``gdir`` (g, 3); "nearby": the centres are closer than :data:`COAXIAL_SHARE` of the
+    smaller region's patch radius sqrt(area / π).
+    """
+    radius = COAXIAL_SHARE * np.sqrt(areas / np.pi)
+    changed = True
+    while changed:
+        changed = False
+        for r in np.flatnonzero((group < 0) & tubular):
+            cand = np.flatnonzero((group >= 0) & tubular)
+            dist = np.linalg.norm(centres[cand] - centres[r], axis=1)
+            near = ((dist < np.minimum(radius[cand], radius[r]))
+                    & (np.abs(axes[cand] @ axes[r]) >= cos_max)
+                    & (np.abs(gdir[group[cand]] @ axes[r]) >= cos_max))
+            if near.any():
+                group[r] = group[cand[near][np.argmin(dist[near])]]
+                changed = True
 
 
 def _absorb_axisless(group: np.ndarray, adjacency: np.ndarray, tubular: np.ndarray) -> None:

@@ -225,7 +225,7 @@ def _cut_all(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition, groups:
         pg = groups.parent[g]
         assert pg is not None
         piece = pieces[pg]
-        region = face_group[tree.query(piece.triangles_center)[1]] == g
+        region = _subtree(groups, g)[face_group[tree.query(piece.triangles_center)[1]]]
         others = [p for k, p in pieces.items() if k != pg]
         ctx = PieceContext(piece, region, _samples(others, settings.seed), head,
                            machine.a_limits, settings.seed)
@@ -240,6 +240,21 @@ def _cut_all(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition, groups:
     for g, s in subparts.items():
         s.mesh = pieces[g] if proxy is mesh else to_trimesh(solids[g])
     return [subparts[g] for g in sorted(subparts)]
+
+
+def _subtree(groups: Groups, g: int) -> np.ndarray:
+    """Which groups are ``g`` or below it in the build tree, (groups,) bool.
+
+    The child piece cut off for ``g`` carries its descendants too (they are cut from it
+    later), so their faces count as the child's when the plane is judged.
+    """
+    inside = np.zeros(groups.count, dtype=bool)
+    inside[g] = True
+    for h in groups.order:  # parents come before children
+        parent = groups.parent[h]
+        if parent is not None and inside[parent]:
+            inside[h] = True
+    return inside
 
 
 def _samples(meshes: list[trimesh.Trimesh], seed: int) -> np.ndarray:
