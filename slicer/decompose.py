@@ -46,6 +46,15 @@ class DecompositionError(ValueError):
     """The part cannot be decomposed into printable sub-parts; ``str()`` is one line."""
 
 
+class RootRegionError(DecompositionError):
+    """``settings.root`` names no coarse region; ``regions`` is how many there are."""
+
+    def __init__(self, root: int, regions: int) -> None:
+        super().__init__(f"root region {root} does not exist: valid regions are "
+                         f"0..{regions - 1} (see the labels in preview.png)")
+        self.root, self.regions = root, regions
+
+
 @dataclass(frozen=True)
 class DecomposeSettings:
     """Knobs of the decomposition (config ``decompose.*``)."""
@@ -177,7 +186,7 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     clock.lap("partition")
     root = root_region(part) if settings.root is None else settings.root
     if not 0 <= root < part.count:
-        raise DecompositionError(f"root region {root} does not exist (0..{part.count - 1})")
+        raise RootRegionError(root, part.count)
     try:
         groups = group_regions(part, root, settings.merge_angle)
     except ValueError as exc:
@@ -330,4 +339,4 @@ def write_decomposition(dec: Decomposition, out_dir: str | Path) -> Path:
 
 
 __all__ = ["DecomposeSettings", "Decomposition", "DecompositionError", "PlaneSearchError",
-           "Subpart", "decompose", "write_decomposition"]
+           "RootRegionError", "Subpart", "decompose", "write_decomposition"]

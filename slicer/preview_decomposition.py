@@ -1,4 +1,5 @@
-"""A PNG a person checks at a glance: sub-parts in colours, cut planes, build order labels."""
+"""A PNG a person checks at a glance: sub-parts in colours, cut planes, build order labels,
+and the coarse region numbers that ``hostctl decompose --root`` takes."""
 
 from __future__ import annotations
 
@@ -24,12 +25,13 @@ def render_preview(dec: Decomposition, path: str | Path, views: tuple[tuple[floa
                    = ((20.0, -60.0), (20.0, 30.0))) -> Path:
     """Draw every sub-part, its base plane and its build-order label into ``path``."""
     colours = plt.get_cmap("tab10")
-    fig = plt.figure(figsize=(6.0 * len(views), 6.0), dpi=100)
+    panels = len(views) + (dec.partition is not None)
+    fig = plt.figure(figsize=(6.0 * panels, 6.0), dpi=100)
     lo = np.min([s.mesh.bounds[0] for s in dec.subparts], axis=0)
     hi = np.max([s.mesh.bounds[1] for s in dec.subparts], axis=0)
     centre, half = (lo + hi) / 2.0, (hi - lo).max() / 2.0
     for v, (elev, azim) in enumerate(views):
-        ax = fig.add_subplot(1, len(views), v + 1, projection="3d")
+        ax = fig.add_subplot(1, panels, v + 1, projection="3d")
         for rank, i in enumerate(dec.order):
             s = dec.subparts[i]
             c = colours(i % 10)
@@ -41,19 +43,46 @@ def render_preview(dec: Decomposition, path: str | Path, views: tuple[tuple[floa
             ax.text(*top, label, color="black", fontsize=9, weight="bold")
             if s.base_plane is not None:
                 _draw_plane(ax, s.base_plane, np.sqrt(s.base_area) * 1.2, c)
-        ax.set_xlim(centre[0] - half, centre[0] + half)
-        ax.set_ylim(centre[1] - half, centre[1] + half)
-        ax.set_zlim(max(0.0, centre[2] - half), centre[2] + half)
-        ax.view_init(elev, azim)
-        ax.set_xlabel("x")
-        ax.set_ylabel("y")
-        ax.set_zlabel("z")
+        _frame(ax, centre, half, elev, azim)
+    if dec.partition is not None:
+        ax = fig.add_subplot(1, panels, panels, projection="3d")
+        _draw_regions(ax, dec)
+        ax.set_title("coarse regions (hostctl decompose --root N)")
+        _frame(ax, centre, half, *views[0])
     fig.suptitle(f"{len(dec.subparts)} sub-parts, build order {dec.order}")
     fig.tight_layout()
     out = Path(path)
     fig.savefig(out)
     plt.close(fig)
     return out
+
+
+def _frame(ax: object, centre: np.ndarray, half: float, elev: float, azim: float) -> None:
+    ax.set_xlim(centre[0] - half, centre[0] + half)
+    ax.set_ylim(centre[1] - half, centre[1] + half)
+    ax.set_zlim(max(0.0, centre[2] - half), centre[2] + half)
+    ax.view_init(elev, azim)
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.set_zlabel("z")
+
+
+def _draw_regions(ax: object, dec: Decomposition) -> None:
+    """Coarse regions in colours, each labelled with its number (what ``--root`` takes) at
+    the face nearest its area centroid."""
+    part = dec.partition
+    assert part is not None
+    step = max(1, len(part.mesh.faces) // (MAX_FACES * 2))
+    cmap = plt.get_cmap("tab20")
+    ax.add_collection3d(Poly3DCollection(part.mesh.triangles[::step], edgecolor="none",
+                                         facecolor=cmap(part.labels[::step] % 20), alpha=0.5))
+    centres = part.centres()
+    tri = part.mesh.triangles_center
+    for r in range(part.count):
+        faces = np.flatnonzero(part.labels == r)
+        at = tri[faces[np.argmin(np.linalg.norm(tri[faces] - centres[r], axis=1))]]
+        ax.text(*at, str(r), color="black", fontsize=9, weight="bold",
+                bbox={"facecolor": "white", "alpha": 0.7, "pad": 1, "edgecolor": "none"})
 
 
 def _draw_plane(ax: object, plane: object, size: float, colour: object) -> None:

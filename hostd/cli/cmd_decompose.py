@@ -23,7 +23,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("model", help="ASCII or binary STL")
     p.add_argument("-o", "--output", required=True, help="output directory")
     p.add_argument("--parts", type=int, default=None, help="coarse K (default: config; 0 auto)")
-    p.add_argument("--root", type=int, default=None, help="coarse region of the root")
+    p.add_argument("--root", type=int, default=None,
+                   help="coarse region of the root (the numbers labelled in preview.png)")
     p.add_argument("--seed", type=int, default=None, help="seed (default: config)")
     p.add_argument("--config", default=str(DEFAULT_CONFIG), help="config file")
     p.add_argument("--no-preview", action="store_true", help="skip preview.png")
@@ -42,6 +43,8 @@ def _settings(cfg: Config, args: argparse.Namespace) -> Any:
     seed = cfg["decompose.seed"] if args.seed is None else args.seed
     if parts < 0 or seed < 0:
         raise CliError("--parts and --seed must be >= 0")
+    if args.root is not None and args.root < 0:
+        raise CliError(f"--root {args.root}: region numbers start at 0")
     return DecomposeSettings(parts=parts, root=args.root, seed=seed, search=search,
                              nozzle_diameter=cfg["machine.nozzle_diameter"])
 
@@ -49,7 +52,12 @@ def _settings(cfg: Config, args: argparse.Namespace) -> Any:
 def run(args: argparse.Namespace) -> int:
     """Run the decomposition and print a short table."""
     from kinematics.machine import MachineGeometry
-    from slicer.decompose import DecompositionError, decompose, write_decomposition
+    from slicer.decompose import (
+        DecompositionError,
+        RootRegionError,
+        decompose,
+        write_decomposition,
+    )
     from slicer.mesh_io import MeshError, load_mesh
     from slicer.printhead import Printhead, PrintheadError
 
@@ -72,6 +80,8 @@ def run(args: argparse.Namespace) -> int:
         dec = decompose(mesh, settings, machine, head, build_volume, placement.matrix)
     except MeshError as exc:
         raise CliError(str(exc)) from None
+    except RootRegionError as exc:
+        raise CliError(f"--root {exc.root}: {exc}") from None
     except DecompositionError as exc:
         raise CliError(f"{args.model}: {exc}", EXIT_FAILED) from None
     out = Path(args.output)

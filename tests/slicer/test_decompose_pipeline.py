@@ -189,3 +189,14 @@ def test_cli_bad_file_is_one_line_exit_2(tmp_path, capsys):
     assert hostctl(["decompose", str(bad), "-o", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "empty" in err
+
+
+@pytest.mark.parametrize("root", ["999", "-1"])
+def test_cli_out_of_range_root_is_one_line_exit_2_with_the_range(tmp_path, capsys, root):
+    model = tmp_path / "cyl.stl"
+    samples.cylinder().export(model)
+    assert hostctl(["decompose", str(model), "-o", str(tmp_path / "o"), "--root", root]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--root {root}" in err
+    if root == "999":
+        assert "valid regions are 0.." in err
