@@ -4,7 +4,8 @@ Reads only the file and the model: the ``;HOSTD_KINEMATICS`` header gives the in
 kinematics, ``;HOSTD_PROCESS`` the bead sizes, ``;HOSTD_PLACEMENT`` the STL → platform
 placement. Reported (all shares in [0, 1]):
 
-* ``inside``: deposited samples inside the model (or within 0.1 w of its surface);
+* ``inside``: deposited samples inside the model (or within 0.1 w of its surface), measured
+  on every third sample;
 * ``coverage`` / ``shell_coverage``: model volume reached by the beads (:mod:`.replay_coverage`);
 * ``supported``: samples with support beneath them or bridging sparse infill, and the wall
   figures of the strict rule (:mod:`.replay_support`);
@@ -37,8 +38,11 @@ from slicer.replay_samples import (
 from slicer.replay_support import WALL_SLACK, bad_wall_layers, bridged, strict_support
 
 INSIDE_SLACK = 0.1  # × line width
+INSIDE_STRIDE = 3  # the inside share is measured on every third deposited sample
 TIP_SPACING = 1.0  # mm between head samples along moves
+FAR_TIP_SPACING = 3.0  # mm between samples of the carriage (radius ≥ 15 mm by default)
 TIP_ANGLE = 1.0  # degrees between head samples while the table turns
+H_MIN, H_MAX = 0.25, 2.0  # bead heights read from E are clipped to these × layer height
 
 
 @dataclass
@@ -127,8 +131,13 @@ def part_frame_path(parsed: ParsedGcode) -> np.ndarray:
 
 
 def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | None = None,
-                 platform_radius: float | None = None) -> ReplayReport:
-    """Replay ``parsed`` against ``mesh`` (STL coordinates) and report the figures."""
+                 platform_radius: float | None = None, placed: bool = False) -> ReplayReport:
+    """Replay ``parsed`` against ``mesh`` and report the figures.
+
+    ``mesh`` is in STL coordinates (moved by the file's placement), or already in the
+    platform frame with ``placed``. ``head`` and ``platform_radius`` default to the file's
+    ``;HOSTD_KINEMATICS`` values.
+    """
     t0 = time.perf_counter()
     timings: dict[str, float] = {}
     geo = geometry_from_header(parsed)
@@ -137,21 +146,26 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     head = _head(parsed, head)
     radius = platform_radius if platform_radius is not None else float(
         parsed.headers.get("KINEMATICS", {}).get("platform_radius", 150.0))
-    tris = platform_triangles(mesh, _placement(parsed))
+    tris = platform_triangles(mesh, np.eye(4) if placed else _placement(parsed))
     bead_area = math.pi * proc["filament_diameter"] ** 2 / 4.0 / w
     ext = extruding_moves(parsed)
-    s = sample_moves(parsed, geo, ext, 0.5 * w, TIP_ANGLE, bead_area)
+    s = sample_moves(parsed, geo, ext, 0.5 * w, TIP_ANGLE, bead_area,
+                     h_range=(H_MIN * t, H_MAX * t))
     timings["sample"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
     dist = surface_distance(tris, s.p, WALL_SLACK * w)
     wall = np.isfinite(dist)
-    ins = inside(tris, s.p) | (dist <= INSIDE_SLACK * w)
+    probe = np.arange(0, len(s), INSIDE_STRIDE)
+    inside_share = float(np.mean(inside(tris, s.p[probe]) | (dist[probe] <= INSIDE_SLACK * w))
+                         ) if len(s) else 1.0
     timings["inside"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
     ok = strict_support(s, t, w, radius)
-    bridge = bridged(s, ~ok & ~wall & ins, t, w, proc["infill_density"])
+    cand = ~ok & ~wall
+    cand[cand] = inside(tris, s.p[cand])
+    bridge = bridged(s, cand, t, w, proc["infill_density"])
     timings["support"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
@@ -159,9 +173,10 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     timings["coverage"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
-    tips = sample_moves(parsed, geo, positioned_moves(parsed), TIP_SPACING, TIP_ANGLE,
-                        bead_area, ends=True)
-    n_hit, reports = find_collisions(parsed, tips, s, head, radius)
+    moved = positioned_moves(parsed)
+    near = sample_moves(parsed, geo, moved, TIP_SPACING, TIP_ANGLE, bead_area, ends=True)
+    far = sample_moves(parsed, geo, moved, FAR_TIP_SPACING, TIP_ANGLE, bead_area, ends=True)
+    n_hit, reports = find_collisions(parsed, near, far, s, head, radius)
     timings["collisions"] = time.perf_counter() - t1
 
     length = np.linalg.norm(np.nan_to_num(parsed.end[ext, :3] - parsed.start[ext, :3]), axis=1)
@@ -169,7 +184,7 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     n = max(len(s), 1)
     return ReplayReport(
         moves=len(parsed), extruding_moves=len(ext), deposited_mm=float(length.sum()),
-        points=len(s), inside=float(ins.sum() / n), coverage=cov, shell_coverage=shell_cov,
+        points=len(s), inside=inside_share, coverage=cov, shell_coverage=shell_cov,
         supported=float((ok | bridge).sum() / n), bridged=float((bridge & ~ok).sum() / n),
         wall_points=int(wall.sum()),
         wall_supported=float(ok[wall].mean()) if wall.any() else 1.0,

@@ -2,8 +2,8 @@
 
 Tips are sampled along every positioned move (≤ ``spacing`` mm, ≤ ``angle_step``° apart, move
 ends included). Printed material is the set of deposited bead centres (tip − h/2 along the
-axis) of layers up to the tip's own layer in print order: the current layer lies below the
-tip, later layers are not there yet. A tip collides when a bead centre lies inside the head
+axis) laid by the moves before the tip's move: material of the current layer lies below the
+tip, and nothing later is there yet. A tip collides when a bead centre lies inside the head
 (:class:`~slicer.printhead.Printhead`) placed there, or when the lowest point of the head
 dips below the platform plane (z = 0) within the platform radius.
 
@@ -24,6 +24,8 @@ from slicer.replay_samples import Samples
 
 PLATFORM_TOL = 1e-3  # mm below z = 0 that still counts as touching, not entering
 MAX_REPORTS = 20
+NEAR_PITCH = 0.5  # mm: bead resolution for the nozzle cone
+FAR_PITCH = 2.0  # mm: bead resolution for the carriage
 
 
 @dataclass(frozen=True)
@@ -68,40 +70,82 @@ def _frame(u: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(u, e1)])
 
 
-def _group_hits(tips: Samples, sel: np.ndarray, beads: np.ndarray, bead_seq: np.ndarray,
-                head: Printhead) -> tuple[np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class HeadPart:
+    """Some consecutive segments of a head: (start, end, r_start, r_end) above the tip."""
+
+    segments: tuple[tuple[float, float, float, float], ...]
+
+    @property
+    def top(self) -> float:
+        return self.segments[-1][1]
+
+    @property
+    def bottom(self) -> float:
+        return self.segments[0][0]
+
+    @property
+    def max_radius(self) -> float:
+        return max(max(r0, r1) for _, _, r0, r1 in self.segments)
+
+    def radius_at(self, h: np.ndarray) -> np.ndarray:
+        """Radius at heights ``h`` above the tip; -1 outside this part."""
+        out = np.full(h.shape, -1.0)
+        for a, b, r0, r1 in self.segments:
+            m = (h > a) & (h <= b)
+            out[m] = r0 + (r1 - r0) * (h[m] - a) / (b - a)
+        return out
+
+
+def voxel_representatives(beads: np.ndarray, move: np.ndarray, pitch: float) -> np.ndarray:
+    """Index of the earliest bead in each occupied voxel of ``pitch``, sorted by move, (k,)."""
+    if len(beads) == 0:
+        return np.zeros(0, dtype=int)
+    cell = np.floor(beads / pitch).astype(np.int64)
+    cell -= cell.min(axis=0)
+    dims = cell.max(axis=0) + 1
+    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    order = np.lexsort((move, key))
+    first = order[np.r_[True, key[order][1:] != key[order][:-1]]]
+    return np.sort(first)
+
+
+def _group_hits(tips: Samples, sel: np.ndarray, beads: np.ndarray, bead_move: np.ndarray,
+                part: HeadPart) -> tuple[np.ndarray, np.ndarray]:
     """(tip index, bead index) of the first hit of each colliding tip in one axis group.
 
-    Beads are in print order (``bead_seq`` non-decreasing). A tip can only hit beads of its
-    own layer or earlier that lie above it: the running maximum of bead height along the
-    axis rules out almost every tip at once.
+    Beads are in print order (``bead_move`` non-decreasing). A tip can only hit beads laid
+    by earlier moves that lie above it: the running maximum of bead height along the axis
+    rules out almost every tip at once; the rest are checked one layer at a time.
     """
     u = tips.u[sel[0]]
     hz_o = beads @ u
     top = np.maximum.accumulate(hz_o) if len(hz_o) else hz_o
-    end = np.searchsorted(bead_seq, tips.seq[sel], side="right")
+    end = np.searchsorted(bead_move, tips.move[sel], side="left")
     hz_t = tips.p[sel] @ u
-    risky = (end > 0) & (hz_t < top[np.maximum(end, 1) - 1])
+    risky = (end > 0) & (hz_t + part.bottom < top[np.maximum(end, 1) - 1])
     out_t, out_o = [np.zeros(0, dtype=int)], [np.zeros(0, dtype=int)]
     frame = _frame(u)
-    for n_beads in np.unique(end[risky]):
-        group = sel[risky & (end == n_beads)]
-        ht = tips.p[group] @ u
-        hz = hz_o[:n_beads]
-        cand = np.flatnonzero((hz > ht.min()) & (hz < ht.max() + head.height))
+    for seq in np.unique(tips.seq[sel[risky]]):
+        batch = risky & (tips.seq[sel] == seq)
+        group = sel[batch]
+        ht = hz_t[batch]
+        n = int(end[batch].max())
+        hz = hz_o[:n]
+        cand = np.flatnonzero((hz > ht.min() + part.bottom) & (hz < ht.max() + part.top))
         if len(cand):
-            ti, oi = _pair_hits(tips, group, beads, cand, u, frame, head)
+            ti, oi = _pair_hits(tips, group, beads, bead_move, cand, u, frame, part)
             out_t.append(ti)
             out_o.append(oi)
     return np.concatenate(out_t), np.concatenate(out_o)
 
 
-def _pair_hits(tips: Samples, group: np.ndarray, beads: np.ndarray, cand: np.ndarray,
-               u: np.ndarray, frame: np.ndarray, head: Printhead
+def _pair_hits(tips: Samples, group: np.ndarray, beads: np.ndarray, bead_move: np.ndarray,
+               cand: np.ndarray, u: np.ndarray, frame: np.ndarray, part: HeadPart
                ) -> tuple[np.ndarray, np.ndarray]:
-    """First bead inside the head for each tip of ``group`` among beads ``cand``."""
+    """First earlier bead inside the head part for each tip of ``group`` among ``cand``."""
     tree = cKDTree(beads[cand] @ frame.T)
-    near = tree.query_ball_point(tips.p[group] @ frame.T, head.max_radius,
+    near = tree.query_ball_point(tips.p[group] @ frame.T, part.max_radius,
                                  return_sorted=False)
     counts = np.fromiter((len(x) for x in near), dtype=np.intp, count=len(group))
     if counts.sum() == 0:
@@ -111,15 +155,32 @@ def _pair_hits(tips: Samples, group: np.ndarray, beads: np.ndarray, cand: np.nda
     rel = beads[oi] - tips.p[ti]
     h = rel @ u
     rho = np.linalg.norm(rel - h[:, None] * u, axis=1)
-    hit = (h > 0) & (rho < head.radius_at(h))
+    hit = (bead_move[oi] < tips.move[ti]) & (rho < part.radius_at(h))
     ti, oi = ti[hit], oi[hit]
     first = np.unique(ti, return_index=True)[1]
     return ti[first], oi[first]
 
 
-def find_collisions(parsed: ParsedGcode, tips: Samples, deposits: Samples, head: Printhead,
-                    platform_radius: float) -> tuple[int, list[Collision]]:
-    """Count colliding tips and describe the first of each (sub-part, layer, obstacle).
+def _material_hits(tips: Samples, deposits: Samples, part: HeadPart, pitch: float
+                   ) -> list[tuple[int, int]]:
+    beads = deposits.p - deposits.u * (deposits.h[:, None] / 2.0)
+    reps = voxel_representatives(beads, deposits.move, pitch)
+    _, group = np.unique(np.round(tips.u, 9), axis=0, return_inverse=True)
+    hits: list[tuple[int, int]] = []
+    for g in np.unique(group):
+        ti, oi = _group_hits(tips, np.flatnonzero(group == g), beads[reps],
+                             deposits.move[reps], part)
+        hits.extend(zip(ti.tolist(), reps[oi].tolist(), strict=True))
+    return hits
+
+
+def find_collisions(parsed: ParsedGcode, near: Samples, far: Samples, deposits: Samples,
+                    head: Printhead, platform_radius: float) -> tuple[int, list[Collision]]:
+    """Count colliding tip samples and describe the first of each (sub-part, layer, obstacle).
+
+    The nozzle (the head's first segment) is checked at tips ``near`` against beads kept at
+    ``NEAR_PITCH``; the rest of the head at the sparser tips ``far`` against ``FAR_PITCH``
+    (one earliest bead per voxel: the check resolves material to that pitch).
 
     Returns
     -------
@@ -128,18 +189,17 @@ def find_collisions(parsed: ParsedGcode, tips: Samples, deposits: Samples, head:
     reports : list of Collision
         At most ``MAX_REPORTS``, in file order.
     """
-    beads = deposits.p - deposits.u * (deposits.h[:, None] / 2.0)
-    keys = np.round(tips.u, 9)
-    _, group = np.unique(keys, axis=0, return_inverse=True)
-    hits: list[tuple[int, int]] = []
-    for g in np.unique(group):
-        ti, oi = _group_hits(tips, np.flatnonzero(group == g), beads, deposits.seq, head)
-        hits.extend(zip(ti.tolist(), oi.tolist(), strict=True))
-    plat = np.flatnonzero(platform_hits(tips, head, platform_radius))
-    hits.extend((int(t), -1) for t in plat)
-    hits.sort()
+    segs = head.segments
+    found = [(near, t, o) for t, o in _material_hits(near, deposits, HeadPart(segs[:1]),
+                                                      NEAR_PITCH)]
+    if len(segs) > 1:
+        found += [(far, t, o) for t, o in _material_hits(far, deposits, HeadPart(segs[1:]),
+                                                          FAR_PITCH)]
+    found += [(near, int(t), -1) for t in np.flatnonzero(platform_hits(near, head,
+                                                                        platform_radius))]
+    found.sort(key=lambda x: (int(x[0].move[x[1]]), x[2]))
     reports, seen = [], set()
-    for t, o in hits:
+    for tips, t, o in found:
         m = int(tips.move[t])
         key = (int(tips.subpart[t]), int(tips.layer[t]), o < 0)
         if key in seen or len(reports) >= MAX_REPORTS:
@@ -150,4 +210,4 @@ def find_collisions(parsed: ParsedGcode, tips: Samples, deposits: Samples, head:
                                  int(deposits.subpart[o]) if o >= 0 else -1,
                                  int(deposits.layer[o]) if o >= 0 else -1,
                                  bool(parsed.transition[m])))
-    return len({t for t, _ in hits}), reports
+    return len({(id(tips), t) for tips, t, _ in found}), reports

@@ -182,18 +182,26 @@ def surface_distance(tris: np.ndarray, points: np.ndarray, max_distance: float) 
     out = np.full(len(p), np.inf)
     if len(p) == 0:
         return out
-    cell = max(2 * CELL, 2.0 * max_distance)
+    cell = max(CELL, 2.0 * max_distance)
     lo, hi = tris.min(axis=1) - max_distance, tris.max(axis=1) + max_distance
     origin = np.minimum(lo.min(axis=0), p.min(axis=0)) - cell
     dims = np.ceil((np.maximum(hi.max(axis=0), p.max(axis=0)) - origin) / cell).astype(
         np.int64) + 2
     keys, owner = _cell_entries(lo, hi, origin, cell, dims)
     pkey, ok = _point_keys(p, origin, cell, dims)
+    normal = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    norm = np.linalg.norm(normal, axis=1, keepdims=True)
+    unit = np.where(norm > 0, normal / np.where(norm > 0, norm, 1.0), 0.0)
     for chunk in np.array_split(np.arange(len(p)), max(1, len(p) // 200_000)):
         pi, ti = _pairs(keys, owner, pkey[chunk], ok[chunk])
         if len(pi) == 0:
             continue
-        d2 = _triangle_d2(p[chunk][pi], tris[ti, 0], tris[ti, 1], tris[ti, 2])
+        q = p[chunk][pi]
+        near = np.abs(np.einsum("ij,ij->i", q - tris[ti, 0], unit[ti])) <= max_distance
+        pi, ti, q = pi[near], ti[near], q[near]
+        if len(pi) == 0:
+            continue
+        d2 = _triangle_d2(q, tris[ti, 0], tris[ti, 1], tris[ti, 2])
         starts = np.flatnonzero(np.r_[True, pi[1:] != pi[:-1]])
         out[chunk[pi[starts]]] = np.sqrt(np.minimum.reduceat(d2, starts))
     out[out > max_distance] = np.inf

@@ -87,12 +87,13 @@ def move_lengths(parsed: ParsedGcode) -> tuple[np.ndarray, np.ndarray]:
 
 def sample_moves(parsed: ParsedGcode, geometry: MachineGeometry, moves: np.ndarray,
                  spacing: float, angle_step: float, bead_area: float,
-                 ends: bool = False) -> Samples:
+                 ends: bool = False, h_range: tuple[float, float] | None = None) -> Samples:
     """Samples along ``moves`` (indices) at most ``spacing`` mm and ``angle_step``° apart.
 
     ``bead_area`` is filament area / line width: bead height = E · bead_area / length.
     Samples sit at the middles of equal pieces, or at their ends (move end included) with
-    ``ends``.
+    ``ends``. ``h_range`` clips bead heights: a file does not record bead widths, so a
+    narrow bead reads as a thin one.
     """
     length, turn = move_lengths(parsed)
     length, turn = length[moves], turn[moves]
@@ -103,6 +104,8 @@ def sample_moves(parsed: ParsedGcode, geometry: MachineGeometry, moves: np.ndarr
     p = inverse(j[:, :3], j[:, 3], j[:, 4], geometry)
     safe_len = np.where(length > 0, length, math.inf)
     h = np.maximum(parsed.e[moves], 0.0) * bead_area / safe_len
+    if h_range is not None:
+        h = np.where(h > 0, np.clip(h, *h_range), 0.0)
     return Samples(p, nozzle_axes(j[:, 3], j[:, 4]), h[owner], m, parsed.layer_seq[m],
                    parsed.subpart[m], parsed.layer[m])
 

@@ -26,6 +26,7 @@ OVERHANG_DEG = 45.0
 LATERAL_SLACK = 0.1  # × line width
 WALL_SLACK = 0.75  # × line width: wall points are this close to the surface
 BAD_LAYER_SHARE = 0.05
+NEIGHBOURS = 12
 
 
 def depth_limit(s: Samples, layer_height: float) -> np.ndarray:
@@ -54,21 +55,31 @@ def platform_support(s: Samples, dmax: np.ndarray, radius: float, slack: float) 
 
 def strict_support(s: Samples, layer_height: float, line_width: float,
                    platform_radius: float, tree: cKDTree | None = None) -> np.ndarray:
-    """The support rule for every sample, (n,) bool."""
+    """The support rule for every sample, (n,) bool.
+
+    Candidates are the ``NEIGHBOURS`` samples nearest a point one layer height beneath each
+    sample along its axis (where supporting material lies); material of the same or later
+    layers is farther from there, so the nearest candidates are the supporting ones.
+    """
     dmax = depth_limit(s, layer_height)
     slack = LATERAL_SLACK * line_width
     ok = platform_support(s, dmax, platform_radius, slack)
     if len(s) < 2:
         return ok
     reach = float(dmax.max())
-    r = math.hypot(reach, reach * math.tan(math.radians(OVERHANG_DEG)) + slack)
+    tan = math.tan(math.radians(OVERHANG_DEG))
+    r = math.hypot(reach, reach * tan + slack) + layer_height
     tree = tree or cKDTree(s.p)
-    pairs = tree.query_pairs(r, output_type="ndarray")
-    if len(pairs):
-        i, j = pairs[:, 0], pairs[:, 1]
-        for top, below in ((i, j), (j, i)):
-            hit = _check(s, top, below, dmax, slack)
-            ok[top[hit]] = True
+    k = min(NEIGHBOURS, len(s))
+    for chunk in np.array_split(np.arange(len(s)), max(1, len(s) // 100_000)):
+        _, idx = tree.query(s.p[chunk] - s.u[chunk] * layer_height, k=k,
+                            distance_upper_bound=r)
+        idx = idx.reshape(len(chunk), k)
+        valid = idx < len(s)
+        below = np.where(valid, idx, 0)
+        top = np.repeat(chunk[:, None], k, axis=1)
+        hit = valid & _check(s, top.ravel(), below.ravel(), dmax, slack).reshape(valid.shape)
+        ok[chunk] |= hit.any(axis=1)
     return ok
 
 

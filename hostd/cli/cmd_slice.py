@@ -1,0 +1,119 @@
+"""``hostctl slice MODEL.stl -o OUT.gcode``: offline five-axis slicing with a replay check."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import time
+from pathlib import Path
+from typing import Any
+
+from hostd.cli.errors import EXIT_FAILED, CliError
+from hostd.config import ConfigError, load
+from hostd.config.paths import DEFAULT_CONFIG
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``slice`` verb."""
+    p = subparsers.add_parser(
+        "slice", help="slice an STL to checked five-axis G-code (offline)",
+        description="Decompose MODEL.stl, slice every sub-part along its own direction, write "
+                    "joint-space G-code and replay-check it; a file with head collisions is "
+                    "refused.")
+    p.add_argument("model", help="ASCII or binary STL")
+    p.add_argument("-o", "--output", required=True, help="G-code file to write")
+    p.add_argument("--layer-height", type=float, default=None,
+                   help="nominal layer height, mm (default: config process.layer_height)")
+    p.add_argument("--config", default=str(DEFAULT_CONFIG), help="config file")
+    p.add_argument("--preview", default=None, help="write a PNG of the toolpaths here")
+    p.add_argument("--planar", action="store_true",
+                   help="3-axis control: no decomposition, horizontal layers, A = C = 0")
+    p.set_defaults(func=run)
+
+
+def _inputs(args: argparse.Namespace) -> dict[str, Any]:
+    from hostd.config import convert
+    from slicer.printhead import PrintheadError
+
+    try:
+        cfg = load(args.config)
+    except ConfigError as exc:
+        raise CliError(str(exc)) from None
+    override: dict[str, float] = {}
+    if args.layer_height is not None:
+        h = args.layer_height
+        if not math.isfinite(h) or not 0.04 <= h <= 0.8 * cfg["machine.nozzle_diameter"]:
+            raise CliError(f"--layer-height {h:g}: must lie in [0.04, "
+                           f"{0.8 * cfg['machine.nozzle_diameter']:g}] mm")
+        override["layer_height"] = h
+    try:
+        head = convert.printhead(cfg)
+    except PrintheadError as exc:
+        raise CliError(f"{cfg.source}: printhead.segments: {exc}") from None
+    try:
+        settings = convert.process_settings(cfg, **override)
+    except (TypeError, ValueError) as exc:
+        raise CliError(f"{cfg.source}: process: {exc}") from None
+    return {"settings": settings, "geometry": convert.machine_geometry(cfg), "head": head,
+            "decompose_settings": convert.decompose_settings(cfg),
+            "platform_radius": convert.platform_radius(cfg),
+            "build_volume": convert.build_volume(cfg)}
+
+
+def _slice(args: argparse.Namespace, inputs: dict[str, Any]) -> Any:
+    from slicer.decompose import DecompositionError
+    from slicer.gcode import GcodeError
+    from slicer.layers import SlicingError
+    from slicer.mesh_io import MeshError
+    from slicer.pipeline import CollisionError, SliceError, slice_model
+
+    try:
+        return slice_model(args.model, planar=args.planar, keep_plan=args.preview is not None,
+                           **inputs)
+    except MeshError as exc:
+        raise CliError(str(exc)) from None
+    except GcodeError as exc:
+        raise CliError(f"{args.config}: {exc}") from None
+    except (CollisionError, DecompositionError, SlicingError, SliceError) as exc:
+        raise CliError(f"{args.model}: {exc}", EXIT_FAILED) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    """Slice, write, print the summary."""
+    t0 = time.perf_counter()
+    result = _slice(args, _inputs(args))
+    from slicer.gcode import write_gcode
+
+    out = Path(args.output)
+    try:
+        write_gcode(out, result.lines)
+        if args.preview:
+            from slicer.preview_toolpaths import render_toolpaths
+            render_toolpaths(result.plan, args.preview)
+    except OSError as exc:
+        raise CliError(f"cannot write: {exc.filename or out}: {exc.strerror or exc}",
+                       EXIT_FAILED) from None
+    _summary(result, out, time.perf_counter() - t0)
+    return 0
+
+
+def _summary(r: Any, out: Path, seconds: float) -> None:
+    est, rep = r.estimate, r.replay
+    lo, hi = r.thickness
+    print(f"wrote {out}: {len(r.lines)} lines")
+    print(f"sub-parts {r.subparts}, layers {r.layers}, local thickness {lo:.3f}–{hi:.3f} mm")
+    print(f"filament {est['filament_mm']:.0f} mm ({est['mass_g']:.1f} g), "
+          f"time {_hms(float(est['time_s']))} ({est['time_s']:.0f} s)")
+    if rep:
+        print(f"replay: inside {100 * rep['inside']:.2f}%, coverage "
+              f"{100 * rep['coverage']:.2f}%, supported {100 * rep['supported']:.2f}% "
+              f"(walls {100 * rep['wall_supported']:.2f}%, "
+              f"{len(rep['unsupported_wall_layers'])} unsupported wall layers), "
+              f"collisions {rep['collisions']}")
+    stages = ", ".join(f"{k} {v:.2f}" for k, v in r.timings.items() if "." not in k)
+    print(f"seconds {seconds:.2f} ({stages})")
+
+
+def _hms(s: float) -> str:
+    h, rem = divmod(round(s), 3600)
+    return f"{h}:{rem // 60:02d}:{rem % 60:02d}"

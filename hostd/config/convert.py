@@ -1,0 +1,71 @@
+"""Configuration → the plain values the slicer takes (``slicer`` never reads YAML).
+
+``process.*`` and the extrusion/motion keys of ``machine.*`` become
+:class:`~slicer.settings.ProcessSettings`; ``machine.*`` the
+:class:`~kinematics.machine.MachineGeometry`; ``printhead.segments`` the
+:class:`~slicer.printhead.Printhead`; ``decompose.*`` the decomposition settings.
+"""
+
+from __future__ import annotations
+
+from dataclasses import fields
+from typing import Any
+
+import numpy as np
+
+from hostd.config.loader import Config
+from kinematics.machine import MachineGeometry
+from slicer.printhead import Printhead
+from slicer.settings import ProcessSettings
+
+_MACHINE_PROCESS_KEYS = ("nozzle_diameter", "filament_diameter", "max_velocity", "max_accel",
+                         "max_rotary_velocity", "max_rotary_accel", "linearize_tolerance")
+
+
+def process_settings(cfg: Config, **override: Any) -> ProcessSettings:
+    """ProcessSettings from ``process.*`` and ``machine.*`` (``override`` wins)."""
+    names = {f.name for f in fields(ProcessSettings)}
+    values: dict[str, Any] = {k: v for k, v in cfg.section("process").items() if k in names}
+    values.update({k: cfg[f"machine.{k}"] for k in _MACHINE_PROCESS_KEYS})
+    values.update(override)
+    return ProcessSettings(**values)
+
+
+def machine_geometry(cfg: Config) -> MachineGeometry:
+    """The table geometry and limits of ``machine.*``."""
+    c_lim = cfg["machine.c_limits"]
+    return MachineGeometry(tuple(cfg["machine.table_origin"]), tuple(cfg["machine.a_pivot"]),
+                           tuple(cfg["machine.a_limits"]),
+                           None if c_lim is None else tuple(c_lim))
+
+
+def printhead(cfg: Config) -> Printhead:
+    """The head of ``printhead.segments`` (raises PrintheadError if malformed)."""
+    return Printhead.from_records(cfg["printhead.segments"])
+
+
+def platform_radius(cfg: Config) -> float:
+    """``machine.platform_radius``, mm."""
+    return float(cfg["machine.platform_radius"])
+
+
+def build_volume(cfg: Config) -> np.ndarray:
+    """Largest part extents (x, y, z) the machine travel allows, mm."""
+    return np.array([hi - lo for lo, hi in (cfg[f"machine.{a}_range"] for a in "xyz")],
+                    dtype=float)
+
+
+def decompose_settings(cfg: Config, **override: Any) -> Any:
+    """DecomposeSettings of ``decompose.*`` (``override`` wins)."""
+    from slicer.decompose import DecomposeSettings
+    from slicer.planes import SearchSettings
+
+    search = SearchSettings(offset_max=cfg["decompose.plane_offset_max"],
+                            angle_max=cfg["decompose.plane_angle_max"],
+                            area_growth_max=cfg["decompose.area_growth_max"],
+                            max_iterations=cfg["decompose.max_iterations"])
+    values: dict[str, Any] = {"parts": cfg["decompose.parts"], "seed": cfg["decompose.seed"],
+                              "search": search,
+                              "nozzle_diameter": cfg["machine.nozzle_diameter"]}
+    values.update(override)
+    return DecomposeSettings(**values)

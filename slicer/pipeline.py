@@ -1,0 +1,166 @@
+"""STL → checked G-code in one call: decompose, plan, write, replay-check.
+
+Used by ``hostctl slice`` and the daemon's slicing worker: a plain function with a plain-data,
+picklable result. A file whose replay finds a head collision is refused
+(:class:`CollisionError`), never returned.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from kinematics.machine import MachineGeometry
+from slicer.gcode import MachineSetup, generate
+from slicer.gcode_reader import parse_lines
+from slicer.plan import PrintPlan
+from slicer.printhead import Printhead
+from slicer.replay import replay_check
+from slicer.settings import ProcessSettings
+
+
+class SliceError(ValueError):
+    """The part cannot be sliced into a checked file; ``str()`` is one line."""
+
+
+class CollisionError(SliceError):
+    """The replay found head collisions: the file is refused."""
+
+
+@dataclass
+class SliceResult:
+    """Everything a caller reports about one slice; plain data only.
+
+    Attributes
+    ----------
+    lines : list of str
+        The G-code.
+    subparts, layers : int
+    thickness : (float, float)
+        Smallest and largest local layer thickness, mm.
+    estimate : dict
+        ``;HOSTD_ESTIMATE`` payload (filament_mm, mass_g, time_s, per sub-part).
+    replay : dict
+        :class:`~slicer.replay.ReplayReport` as a dict.
+    transitions : list of dict
+    timings : dict of str to float
+        Seconds per stage.
+    seconds : float
+        Wall time of the whole call.
+    """
+
+    lines: list[str]
+    subparts: int
+    layers: int
+    thickness: tuple[float, float]
+    estimate: dict[str, object]
+    replay: dict[str, object]
+    transitions: list[dict[str, object]] = field(default_factory=list)
+    timings: dict[str, float] = field(default_factory=dict)
+    seconds: float = 0.0
+    plan: PrintPlan | None = None
+
+    def summary(self) -> dict[str, object]:
+        """The result without the G-code lines and the plan."""
+        d = asdict(self)
+        d.pop("lines")
+        d.pop("plan")
+        return d
+
+
+def _load(mesh_or_path: trimesh.Trimesh | str | Path, min_size: float,
+          build_volume: np.ndarray | None) -> tuple[trimesh.Trimesh, np.ndarray]:
+    """(placed mesh, placement matrix)."""
+    from slicer.mesh_io import load_mesh, place_on_platform, repair
+
+    if isinstance(mesh_or_path, str | Path):
+        mesh, placement = load_mesh(mesh_or_path, build_volume, min_size)
+        return mesh, placement.matrix
+    mesh, placement = place_on_platform(repair(mesh_or_path))
+    return mesh, placement.matrix
+
+
+def plan_model(mesh: trimesh.Trimesh, placement: np.ndarray, settings: ProcessSettings,
+               geometry: MachineGeometry, head: Printhead, decompose_settings: object | None,
+               planar: bool, build_volume: np.ndarray | None = None) -> PrintPlan:
+    """Decompose and plan a placed mesh (or plan it planar, A = C = 0)."""
+    from slicer.planner import plan_planar, plan_print
+
+    if planar:
+        return plan_planar(mesh, settings, geometry, placement)
+    from slicer.decompose import DecomposeSettings, decompose
+
+    dec_settings = decompose_settings or DecomposeSettings(
+        nozzle_diameter=settings.nozzle_diameter)
+    dec = decompose(mesh, dec_settings, geometry, head, build_volume, placement)
+    return plan_print(dec, settings, geometry, head)
+
+
+def _thickness(plan: PrintPlan) -> tuple[float, float]:
+    ranges = [sp.thickness_range for sp in plan.subparts if sp.layers]
+    if not ranges:
+        return (0.0, 0.0)
+    return (float(min(r[0] for r in ranges)), float(max(r[1] for r in ranges)))
+
+
+def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSettings,
+                geometry: MachineGeometry, head: Printhead | None = None,
+                decompose_settings: object | None = None, platform_radius: float = 150.0,
+                planar: bool = False, build_volume: np.ndarray | None = None,
+                check: bool = True, keep_plan: bool = False) -> SliceResult:
+    """Slice a part to checked G-code.
+
+    Parameters
+    ----------
+    mesh_or_path : trimesh.Trimesh or path
+        The part in STL coordinates (it is repaired and placed on its flat base).
+    settings, geometry, head
+        Process, machine geometry and collision model.
+    decompose_settings : slicer.decompose.DecomposeSettings, optional
+    platform_radius : float
+    planar : bool
+        The 3-axis control: one sub-part, horizontal layers, A = C = 0.
+    check : bool
+        Run the replay check (and refuse collisions).
+    keep_plan : bool
+        Keep the PrintPlan in the result (for previews).
+
+    Raises
+    ------
+    SliceError, CollisionError
+        And the loaders' MeshError / DecompositionError / SlicingError, all one line.
+    """
+    t0 = time.perf_counter()
+    head = head or Printhead.default()
+    timings: dict[str, float] = {}
+    mesh, placement = _load(mesh_or_path, settings.nozzle_diameter, build_volume)
+    timings["load"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    plan = plan_model(mesh, placement, settings, geometry, head, decompose_settings, planar,
+                      build_volume)
+    timings["plan"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    res = generate(plan, settings, MachineSetup(geometry, head, platform_radius))
+    timings["gcode"] = time.perf_counter() - t1
+    report: dict[str, object] = {}
+    if check:
+        t1 = time.perf_counter()
+        parsed = parse_lines(res.lines)
+        timings["read"] = time.perf_counter() - t1
+        t1 = time.perf_counter()
+        rep = replay_check(parsed, mesh, head, platform_radius, placed=True)
+        timings["replay"] = time.perf_counter() - t1
+        report = rep.to_dict()
+        if not rep.ok:
+            first = rep.collision_messages[0] if rep.collision_messages else ""
+            raise CollisionError(f"replay found {rep.collisions} head collision(s); refusing "
+                                 f"to write the file: {first}")
+    return SliceResult(res.lines, len(plan.subparts),
+                       sum(len(sp.layers) for sp in plan.subparts), _thickness(plan),
+                       res.estimate.header(), report, res.transitions,
+                       {**{f"plan.{k}": v for k, v in plan.timings.items()}, **timings},
+                       time.perf_counter() - t0, plan if keep_plan else None)

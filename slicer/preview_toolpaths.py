@@ -1,0 +1,73 @@
+"""A PNG of a print plan's toolpaths in the platform frame, coloured by sub-part."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from mpl_toolkits.mplot3d.art3d import Line3DCollection
+
+from slicer.plan import PrintPlan
+
+MAX_SEGMENTS = 60_000  # per view, evenly thinned beyond this
+
+
+def _segments(plan: PrintPlan) -> tuple[np.ndarray, np.ndarray]:
+    """All extrusion segments (n, 2, 3) and the sub-part of each (n,)."""
+    segs, owner = [], []
+    for sp in plan.subparts:
+        for layer in sp.layers:
+            for path in layer.paths:
+                p = np.asarray(path.points, dtype=float).reshape(-1, 3)
+                if path.closed and len(p) > 2:
+                    p = np.vstack([p, p[:1]])
+                if len(p) < 2:
+                    continue
+                segs.append(np.stack([p[:-1], p[1:]], axis=1))
+                owner.append(np.full(len(p) - 1, sp.index))
+    if not segs:
+        return np.zeros((0, 2, 3)), np.zeros(0, dtype=int)
+    return np.concatenate(segs), np.concatenate(owner)
+
+
+def render_toolpaths(plan: PrintPlan, path: str | Path, dpi: int = 110) -> None:
+    """Write a two-view PNG (3D and side view) of the plan's toolpaths to ``path``."""
+    segs, owner = _segments(plan)
+    if len(segs) > MAX_SEGMENTS:
+        keep = np.linspace(0, len(segs) - 1, MAX_SEGMENTS).astype(int)
+        segs, owner = segs[keep], owner[keep]
+    cmap = plt.get_cmap("tab10")
+    colors = cmap(owner % 10) if len(owner) else np.zeros((0, 4))
+    fig = plt.figure(figsize=(11, 5.5))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    ax.add_collection3d(Line3DCollection(segs, colors=colors, linewidths=0.3))
+    if len(segs):
+        lo, hi = segs.reshape(-1, 3).min(axis=0), segs.reshape(-1, 3).max(axis=0)
+        span = float((hi - lo).max()) / 2 or 1.0
+        mid = (lo + hi) / 2
+        ax.set_xlim(mid[0] - span, mid[0] + span)
+        ax.set_ylim(mid[1] - span, mid[1] + span)
+        ax.set_zlim(max(0.0, mid[2] - span), mid[2] + span)
+    ax.set_xlabel("x mm")
+    ax.set_ylabel("y mm")
+    ax.set_zlabel("z mm")
+    side = fig.add_subplot(1, 2, 2)
+    from matplotlib.collections import LineCollection
+
+    side.add_collection(LineCollection(segs[:, :, [0, 2]], colors=colors, linewidths=0.3))
+    side.autoscale()
+    side.set_aspect("equal")
+    side.set_xlabel("x mm")
+    side.set_ylabel("z mm")
+    handles = [plt.Line2D([], [], color=cmap(sp.index % 10), label=f"sub-part {sp.index}")
+               for sp in plan.subparts]
+    side.legend(handles=handles, loc="upper right", fontsize=8)
+    fig.suptitle(f"{len(plan.subparts)} sub-parts, "
+                 f"{sum(len(sp.layers) for sp in plan.subparts)} layers")
+    fig.tight_layout()
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
