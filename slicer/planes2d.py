@@ -136,8 +136,7 @@ def cross_section_polygons(cs: m3.CrossSection) -> BaseGeometry:
         areas = np.array([_signed_area(r) for r in rings])
         k = int(np.argmax(areas))
         polys.append(shapely.Polygon(rings[k], [r for i, r in enumerate(rings) if i != k]))
-    geom = shapely.make_valid(shapely.MultiPolygon(polys)) if polys else shapely.Polygon()
-    return _polygonal(geom)
+    return _polygonal(shapely.MultiPolygon(polys)) if polys else shapely.Polygon()
 
 
 def _polygonal(geom: BaseGeometry) -> BaseGeometry:
@@ -166,17 +165,25 @@ def _signed_area(ring: np.ndarray) -> float:
 def section(solid: m3.Manifold, origin: ArrayLike, frame: np.ndarray) -> BaseGeometry:
     """The cross-section of ``solid`` by the plane (origin, frame[2]) in the plane's 2D frame.
 
-    Simplified by :data:`TOL.simplify` (Douglas–Peucker, topology kept): a finely tessellated
-    STL gives hundreds of vertices per circle, which every later boolean pays for.
+    Simplified by :data:`TOL.simplify` (Douglas–Peucker, then made valid if a tiny ring
+    collapsed): a finely tessellated STL gives hundreds of vertices per circle, which every
+    later boolean pays for.
 
     Returns
     -------
     shapely Polygon or MultiPolygon
         Possibly empty.
     """
-    mat = np.hstack([frame, -(frame @ np.asarray(origin, dtype=float)).reshape(3, 1)])
-    region = cross_section_polygons(solid.transform(mat).slice(0.0))
-    return polygonal(shapely.simplify(region, TOL.simplify)) if TOL.simplify > 0 else region
+    o = np.asarray(origin, dtype=float)
+    if np.array_equal(frame, np.eye(3)):  # horizontal, unrotated: slice in place (no copy)
+        region = shapely.affinity.translate(cross_section_polygons(solid.slice(o[2])),
+                                            -o[0], -o[1])
+    else:
+        mat = np.hstack([frame, -(frame @ o).reshape(3, 1)])
+        region = cross_section_polygons(solid.transform(mat).slice(0.0))
+    if TOL.simplify <= 0:
+        return region
+    return polygonal(shapely.simplify(region, TOL.simplify, preserve_topology=False))
 
 
 def map_between(geom: BaseGeometry, src: tuple[np.ndarray, np.ndarray],
