@@ -126,6 +126,8 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                   lo=16, hi=65536, integer=True),
         "ok_timeout": Number("Seconds without an ok before nudging with M105.", 10.0,
                              lo=0.05, hi=3600),
+        "nudges": Number("M105 nudges after successive timeouts before the link is lost.", 1,
+                         lo=1, hi=100, integer=True),
         "resend_limit": Number("Resends of one line before the job fails.", 10, lo=1,
                                hi=1000, integer=True),
         "history_size": Number("Sent lines kept for resends.", 1024, lo=16, hi=1_000_000,

@@ -5,27 +5,33 @@ the :mod:`hostd.link.actions` the shell must carry out, in order.
 
 Model
 -----
-Every line transmitted is answered by exactly one ``ok`` (after execution, or after the
-``Error``/``Resend`` pair that rejected it), so the lines in flight form a FIFO that each
-``ok`` pops from the head. ``Resend: N`` rewinds transmission to line ``N`` and marks every
-line ``>= N`` in flight *void* (the firmware rejects them; their ``ok`` acknowledges nothing).
-A resend request caused by a void line, or by one sent before the latest rewind, is a
-duplicate and ignored. Two resynchronisations recover from lost ``ok``s: an ``ok N<n>``
-(ADVANCED_OK) acknowledges everything up to line ``n``; an ``ok T:…`` answers the oldest
-``M105`` in flight, and since the firmware executes in order it acknowledges everything
-before it. Acknowledgements are cumulative and never run ahead of the firmware: a lost
-``ok`` only delays them.
+Marlin accepts numbered lines strictly in sequence and executes them in that order, so the
+``i``-th *success* ``ok`` after ``M110 N0`` means line ``i`` has been executed. A line it
+rejects (bad checksum, wrong number) is answered at once, out of order, by ``Error:``,
+``Resend: k`` and an *error* ``ok``; the ``ok`` right after a resend request is that error
+``ok``. So:
+
+- acknowledgements count success ``ok``s along the line numbers (conservative: a lost ``ok``
+  delays them, never advances them); ``ok N<n>`` (ADVANCED_OK) and ``ok T:`` (the answer to
+  a numbered ``M105``, executed in order) resynchronise the count after lost ``ok``s;
+- ``Resend: k`` rewinds transmission to line ``k``; a request caused by a line sent before the
+  latest rewind is a duplicate and ignored; a loop guard counts rewinds per line;
+- window credit is the bytes of transmissions not yet answered: a success ``ok`` frees every
+  transmission of the lines it executed, an error ``ok`` the oldest transmission at or after
+  ``k`` (the one rejected), and after a whole timeout of silence all credit is released;
+- on a timeout the next line (or a numbered ``M105``) is sent as a nudge; a second timeout
+  without any ``ok`` declares the link lost.
 """
 
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from hostd.link import errors
 from hostd.link.actions import Acked, Action, Answer, Connected, Failed, Write
 from hostd.link.framing import encode, frame
+from hostd.link.inflight import InFlight, Item, Sent
 from hostd.link.observed import Observed
 from hostd.link.replies import (
     Banner,
@@ -44,24 +50,6 @@ from hostd.link.window import SendWindow
 
 HANDSHAKE = "M110 N0"
 NUDGE = "M105"
-
-
-@dataclass
-class _Item:
-    command: str
-    seq: int | None  # submission order (None for the handshake and nudges)
-    kind: str  # line | query | handshake | nudge
-    number: int | None = None  # N, given at the first transmission
-    data: bytes = b""
-
-
-@dataclass
-class _Sent:
-    item: _Item
-    epoch: int
-    sent_at: float
-    void: bool = False
-    replies: list[Reply] = field(default_factory=list)
 
 
 class Protocol:
@@ -100,7 +88,7 @@ class Protocol:
         if self.state != "ready":
             raise errors.NotConnected(f"link is {self.state}", self.last_acked)
         self._seq += 1
-        self._pending.append(_Item(command, self._seq, kind))
+        self._pending.append(Item(command, self._seq, kind))
         self._pump(now)
         return self._seq, self._flush()
 
@@ -131,7 +119,7 @@ class Protocol:
         """When :meth:`tick` must next be called, or ``None`` if nothing is awaited."""
         if self.state == "handshake":
             return self._progress + self.settings.handshake_timeout
-        if self.state == "ready" and self._inflight:
+        if self.state == "ready" and (self._sent_max > self._executed or self._inflight):
             return self._progress + self.settings.ok_timeout
         return None
 
@@ -161,10 +149,11 @@ class Protocol:
             **self.observed.as_dict(),
             **self.counters.as_dict(),
             "last_acked": self._acked,
+            "last_executed_line": self._executed,
             "window_bytes": self.window.size if self.window.mode == "window" else 0,
             "flow_control": self.window.mode,
-            "inflight_lines": len(self._inflight),
-            "inflight_bytes": self._bytes,
+            "inflight_lines": self._inflight.lines,
+            "inflight_bytes": self._inflight.bytes,
             "queued_lines": len(self._pending) + len(self._resend),
             "ok_rtt": self.rtt.as_dict(),
         }
@@ -172,23 +161,26 @@ class Protocol:
     # -- state --------------------------------------------------------------------------
 
     def _clear(self, now: float) -> None:
-        self._next = 1
+        self._next = 0
         self._seq = 0
         self._acked = 0
+        self._acked_number = 0
+        self._executed = 0
         self._sent_max = 0
         self._epoch = 0
         self._rewind_target = 0
-        self._history: dict[int, _Item] = {}
+        self._history: dict[int, Item] = {}
         self._history_low = 0
-        self._pending: deque[_Item] = deque()
-        self._resend: deque[_Item] = deque()
-        self._inflight: deque[_Sent] = deque()
-        self._bytes = 0
-        self._after_resend = False
-        self._nudged = False
+        self._pending: deque[Item] = deque()
+        self._resend: deque[Item] = deque()
+        self._inflight = InFlight()
+        self._after_resend: int | None = None
+        self._nudged = 0
         self._progress = now
         self._attempts = 0
         self._resend_counts: dict[int, int] = {}
+        self._since_ok: list[Reply] = []
+        self._m105: deque[int] = deque()  # M105 transmissions awaiting their ok T:
         self.window = SendWindow(self.settings.flow_control, self.settings.rx_buffer_bytes)
 
     def _restart(self, now: float) -> None:
@@ -206,16 +198,15 @@ class Protocol:
         self._pending.clear()
         self._resend.clear()
         self._inflight.clear()
-        self._bytes = 0
         self.state = state
 
     # -- sending ------------------------------------------------------------------------
 
     def _send_handshake(self, now: float) -> None:
-        item = _Item(HANDSHAKE, None, "handshake", 0, encode(frame(0, HANDSHAKE)))
         self._inflight.clear()
-        self._bytes = 0
-        self._transmit(item, now)
+        self._after_resend = None
+        self._next = 0
+        self._transmit(Item(HANDSHAKE, None, "handshake"), now)
 
     def _pump(self, now: float) -> None:
         if self.state != "ready":
@@ -225,22 +216,24 @@ class Protocol:
             if not queue:
                 return
             item = queue[0]
-            if not self.window.fits(len(self._inflight), self._bytes, len(item.data)):
+            size = len(item.data) if item.data else len(item.command) + 12
+            if not self.window.fits(self._inflight.lines, self._inflight.bytes, size):
                 return
             queue.popleft()
             self._transmit(item, now)
 
-    def _transmit(self, item: _Item, now: float) -> None:
+    def _transmit(self, item: Item, now: float) -> None:
         if item.number is None:
             item.number = self._next
             self._next += 1
             item.data = encode(frame(item.number, item.command))
             self._history[item.number] = item
-        if not self._inflight:
+        if self._sent_max <= self._executed and not self._inflight:
             self._progress = now
         self._out.append(Write(item.data))
-        self._inflight.append(_Sent(item, self._epoch, now))
-        self._bytes += len(item.data)
+        self._inflight.add(Sent(item, self._epoch, now))
+        if item.command.split()[0] == NUDGE:
+            self._m105.append(item.number)
         if item.kind == "handshake":
             return
         self.counters.lines_sent += 1
@@ -248,84 +241,90 @@ class Protocol:
             self.counters.lines_resent += 1
         self._sent_max = max(self._sent_max, item.number)
 
-    # -- replies ------------------------------------------------------------------------
+    # -- ok -----------------------------------------------------------------------------
 
     def _on_ok(self, ok: Ok, now: float) -> None:
-        if not self._inflight:
-            return
         self._progress = now
-        self._nudged = False
+        self._nudged = 0
         if self.state == "handshake":
             self._handshake_ok(now)
             return
-        count = self._ok_span(ok)
-        self._after_resend = False
-        popped = [self._pop() for _ in range(count)]
-        self._acknowledge(popped, ok, now)
-
-    def _ok_span(self, ok: Ok) -> int:
-        """How many lines in flight this ``ok`` answers (more than one after lost oks)."""
-        if ok.temperatures is not None:
-            for i, sent in enumerate(self._inflight):
-                if not sent.void and sent.item.command.split()[0] == NUDGE:
-                    return i + 1
-        elif ok.line is not None and not self._after_resend:
-            for i, sent in enumerate(self._inflight):
-                if not sent.void and sent.item.number == ok.line:
-                    return i + 1
-        return 1
-
-    def _pop(self) -> _Sent:
-        sent = self._inflight.popleft()
-        self._bytes -= len(sent.item.data)
-        return sent
-
-    def _acknowledge(self, popped: list[_Sent], ok: Ok, now: float) -> None:
-        good = [s for s in popped if not s.void and s.item.kind != "handshake"]
-        if popped and not popped[-1].void:
-            self.rtt.add(now - popped[-1].sent_at)
-        if not good:
+        if self._after_resend is not None:
+            rejected = self._inflight.first_from(self._after_resend)
+            self._after_resend = None
+            if rejected is not None:
+                self._inflight.remove(rejected)
             return
-        self.window.grow()
-        for sent in good:
-            if sent.item.kind == "query":
-                replies = [*sent.replies, ok] if sent is popped[-1] else sent.replies
-                self._out.append(Answer(sent.item.seq or 0, tuple(replies)))
-        top = max(s.item.seq or 0 for s in good)
-        if top > self._acked:
-            self.counters.lines_acked += top - self._acked
-            self._acked = top
-            self._out.append(Acked(top))
-        self._forget(max(s.item.number or 0 for s in good))
+        line = self._executed_by(ok)
+        if line <= self._executed:
+            return
+        self._execute_through(line, ok, now)
 
-    def _forget(self, acked: int) -> None:
-        limit = acked - self.settings.history_size
+    def _executed_by(self, ok: Ok) -> int:
+        """The line number this success ``ok`` shows executed."""
+        if ok.line is not None:
+            return ok.line if self._executed < ok.line <= self._sent_max else self._executed
+        if ok.temperatures is not None:
+            while self._m105 and self._m105[0] <= self._executed:
+                self._m105.popleft()
+            if self._m105:
+                return self._m105.popleft()
+        return min(self._executed + 1, self._sent_max)
+
+    def _execute_through(self, line: int, ok: Ok, now: float) -> None:
+        sent = self._inflight.find(line)
+        if sent is not None:
+            self.rtt.add(now - sent.sent_at)
+        first = self._executed + 1
+        self._executed = line
+        self._inflight.drop_through(line)
+        self.window.grow()
+        for number in range(first, line + 1):
+            item = self._history.get(number)
+            if item is not None and item.kind == "query" and item.seq is not None:
+                replies = (*self._since_ok, ok) if number == line else ()
+                self._out.append(Answer(item.seq, replies))
+        self._since_ok = []
+        self._advance_ack(first, line)
+        self._forget(line)
+
+    def _advance_ack(self, first: int, line: int) -> None:
+        for number in range(line, first - 1, -1):
+            item = self._history.get(number)
+            if item is not None and item.seq is not None:
+                if item.seq > self._acked:
+                    self.counters.lines_acked += item.seq - self._acked
+                    self._acked = item.seq
+                    self._out.append(Acked(item.seq))
+                return
+
+    def _forget(self, executed: int) -> None:
+        limit = executed - self.settings.history_size
         while self._history_low <= limit:
             self._history.pop(self._history_low, None)
             self._history_low += 1
-        for n in [n for n in self._resend_counts if n <= acked]:
+        for n in [n for n in self._resend_counts if n <= executed]:
             del self._resend_counts[n]
+
+    # -- resend -------------------------------------------------------------------------
 
     def _on_resend(self, resend: Resend, now: float) -> None:
         self.counters.resend_requests += 1
-        self._after_resend = True
-        head = self._inflight[0] if self._inflight else None
-        if self.state == "handshake":
-            if head is not None:
-                head.void = True
+        self._after_resend = resend.line
+        if self.state != "ready":
             return
-        if self._is_duplicate(head, resend.line):
+        if self._is_duplicate(resend.line):
             self.counters.duplicate_resends += 1
             return
         self._rewind(resend.line)
 
-    def _is_duplicate(self, head: _Sent | None, line: int) -> bool:
+    def _is_duplicate(self, line: int) -> bool:
         if line > self._sent_max:
             return True
-        if head is None:
+        rejected = self._inflight.first_from(line)
+        if rejected is None:
             return False
-        stale = head.void or head.epoch < self._epoch
-        return stale and line >= self._rewind_target
+        return rejected.epoch < self._epoch and line >= self._rewind_target
 
     def _rewind(self, line: int) -> None:
         missing = [n for n in range(line, self._sent_max + 1) if n not in self._history]
@@ -343,19 +342,18 @@ class Protocol:
             return
         self._epoch += 1
         self._rewind_target = line
-        for sent in self._inflight:
-            if sent.item.number is not None and sent.item.number >= line:
-                sent.void = True
         self._resend = deque(self._history[n] for n in range(line, self._sent_max + 1))
         self.window.shrink()
+
+    # -- other replies ------------------------------------------------------------------
 
     def _on_error(self, error: ErrorReply, now: float) -> None:
         if error.kind == "checksum":
             self.counters.checksum_errors += 1
         if error.kind != "other":
             self.counters.line_errors += 1
-        elif self.state == "ready":
-            self._collect(error)
+        else:
+            self._since_ok.append(error)
 
     def _on_busy(self, busy: Busy, now: float) -> None:
         self._progress = now
@@ -383,19 +381,18 @@ class Protocol:
         self._restart(now)
 
     def _collect(self, reply: Reply) -> None:
-        for sent in self._inflight:
-            if sent.item.kind == "query":
-                sent.replies.append(reply)
+        self._since_ok.append(reply)
+        del self._since_ok[:-16]
 
-    # -- timeouts -----------------------------------------------------------------------
+    # -- handshake and timeouts ---------------------------------------------------------
 
     def _handshake_ok(self, now: float) -> None:
-        sent = self._pop()
-        if sent.void:
+        if self._after_resend is not None:
             self._send_handshake(now)
             return
+        self._inflight.clear()
+        self._next = 1
         self.state = "ready"
-        self._after_resend = False
         self._out.append(Connected())
 
     def _handshake_timeout(self, now: float) -> None:
@@ -408,14 +405,22 @@ class Protocol:
 
     def _ok_timeout(self, now: float) -> None:
         self.counters.timeouts += 1
-        if self._nudged:
+        if self._nudged >= self.settings.nudges:
             self._fail(errors.LinkLost(
-                f"no ok for {self.settings.ok_timeout:g} s, even after an {NUDGE} nudge",
+                f"no ok for {self.settings.ok_timeout:g} s, even after {self._nudged} {NUDGE} "
+                f"nudge(s)",
                 self._acked), "lost")
             return
-        self._nudged = True
-        self._transmit(_Item(NUDGE, None, "nudge"), now)
+        self._nudged += 1
         self._progress = now
+        # The firmware has been quiet for a whole timeout: it has answered whatever it was
+        # going to answer, or the answers are lost. Its buffer is empty, so the lines in
+        # flight no longer hold credit. A line being resent is the tickle it waits for;
+        # otherwise a numbered M105, whose ``ok T:`` also resynchronises the ok count.
+        self._inflight.uncount()
+        self._m105.clear()
+        if not self._resend:
+            self._transmit(Item(NUDGE, None, "nudge"), now)
 
     _handlers: ClassVar[dict[type, Any]] = {
         Ok: _on_ok, Resend: _on_resend, ErrorReply: _on_error, Busy: _on_busy,

@@ -25,6 +25,8 @@ class LinkSettings:
         Firmware receive buffer the window may fill, bytes.
     ok_timeout
         Seconds without progress before the M105 nudge; as long again before the link is lost.
+    nudges
+        ``M105`` nudges sent after successive timeouts before the link is declared lost.
     resend_limit
         Resend requests for one line before the job fails.
     history_size
@@ -44,6 +46,7 @@ class LinkSettings:
     flow_control: str = "window"
     rx_buffer_bytes: int = 127
     ok_timeout: float = 10.0
+    nudges: int = 1
     resend_limit: int = 10
     history_size: int = 1024
     handshake_timeout: float = 2.0
@@ -59,6 +62,7 @@ def link_settings_from_config(cfg: Config) -> LinkSettings:
     return LinkSettings(
         port=s["port"], baud=int(s["baud"]), flow_control=s["flow_control"],
         rx_buffer_bytes=int(s["rx_buffer_bytes"]), ok_timeout=float(s["ok_timeout"]),
+        nudges=int(s["nudges"]),
         resend_limit=int(s["resend_limit"]), history_size=int(s["history_size"]),
         handshake_timeout=float(s["handshake_timeout"]),
         handshake_attempts=int(s["handshake_attempts"]),

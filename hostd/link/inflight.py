@@ -1,0 +1,101 @@
+"""Bookkeeping of the lines sent and not yet answered: window credit and resend epochs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class Item:
+    """One command to transmit: its submission number and, once sent, its line number."""
+
+    command: str
+    seq: int | None  # submission order (None for the handshake and nudges)
+    kind: str  # line | query | handshake | nudge
+    number: int | None = None  # N, given at the first transmission
+    data: bytes = b""
+
+
+@dataclass
+class Sent:
+    """One transmission of an item (a resent line is transmitted more than once)."""
+
+    item: Item
+    epoch: int
+    sent_at: float
+    counted: bool = True  # still holds window credit
+
+    @property
+    def number(self) -> int:
+        """The line number on the wire."""
+        assert self.item.number is not None
+        return self.item.number
+
+
+class InFlight:
+    """Transmissions not yet answered by an ``ok``, in transmission order.
+
+    ``bytes`` and ``lines`` count only transmissions that still hold window credit.
+    """
+
+    def __init__(self) -> None:
+        self._entries: list[Sent] = []
+        self.bytes = 0
+        self.lines = 0
+
+    def __bool__(self) -> bool:
+        return bool(self._entries)
+
+    def add(self, sent: Sent) -> None:
+        """Record a transmission."""
+        self._entries.append(sent)
+        self.bytes += len(sent.item.data)
+        self.lines += 1
+
+    def first_from(self, number: int) -> Sent | None:
+        """The oldest transmission of a line numbered ``number`` or higher."""
+        for sent in self._entries:
+            if sent.number >= number:
+                return sent
+        return None
+
+    def find(self, number: int) -> Sent | None:
+        """The latest transmission of line ``number``."""
+        for sent in reversed(self._entries):
+            if sent.number == number:
+                return sent
+        return None
+
+    def remove(self, sent: Sent) -> None:
+        """Forget one transmission (it was answered)."""
+        self._entries.remove(sent)
+        self._release(sent)
+
+    def drop_through(self, number: int) -> None:
+        """Forget every transmission of lines up to ``number`` (they have been executed)."""
+        keep = []
+        for sent in self._entries:
+            if sent.number <= number:
+                self._release(sent)
+            else:
+                keep.append(sent)
+        self._entries = keep
+
+    def uncount(self) -> None:
+        """Release the credit of every transmission (the firmware's buffer is known empty)."""
+        for sent in self._entries:
+            sent.counted = False
+        self.bytes = 0
+        self.lines = 0
+
+    def clear(self) -> None:
+        """Forget everything."""
+        self._entries.clear()
+        self.bytes = 0
+        self.lines = 0
+
+    def _release(self, sent: Sent) -> None:
+        if sent.counted:
+            sent.counted = False
+            self.bytes -= len(sent.item.data)
+            self.lines -= 1
