@@ -5,7 +5,8 @@ The model is sampled on a regular grid (at most ``MAX_GRID`` points). A grid poi
 holds it: axial offset along that sample's nozzle axis within the bead height (± a quarter
 layer) and lateral offset at most 0.75 w. A *core* point (deeper inside, where sparse infill
 goes) is covered when a deposited sample lies within half the infill spacing (w / density)
-plus 0.75 w and one layer height: the toolpaths reach it at the designed density.
+plus 0.75 w laterally and 1.5 layer heights axially: the toolpaths reach it at the designed
+density.
 """
 
 from __future__ import annotations
@@ -49,6 +50,17 @@ def _shell_covered(g: np.ndarray, s: Samples, tree: cKDTree, w: float, t: float
     return (valid & inside).any(axis=1)
 
 
+def _core_covered(g: np.ndarray, s: Samples, tree: cKDTree, lateral: float, t: float
+                  ) -> np.ndarray:
+    k = min(NEIGHBOURS, len(s))
+    dist, idx = tree.query(g, k=k, distance_upper_bound=float(np.hypot(lateral, 1.5 * t)))
+    dist, idx = dist.reshape(len(g), k), idx.reshape(len(g), k)
+    valid = np.isfinite(dist)
+    rel = g[:, None, :] - s.p[np.where(valid, idx, 0)]
+    ax = np.einsum("ijk,ijk->ij", rel, s.u[np.where(valid, idx, 0)])
+    return (valid & (np.abs(ax) <= 1.5 * t)).any(axis=1)
+
+
 def coverage(tris: np.ndarray, s: Samples, line_width: float, layer_height: float,
              perimeters: int, infill_density: float) -> tuple[float, float]:
     """Share of the model volume covered, overall and in the shell.
@@ -79,8 +91,7 @@ def coverage(tris: np.ndarray, s: Samples, line_width: float, layer_height: floa
     core = ~shell
     if core.any():
         spacing = line_width / infill_density if infill_density > 0 else 0.0
-        reach = 0.5 * spacing + REACH * line_width + layer_height
-        d, _ = tree.query(g[core], k=1, distance_upper_bound=reach)
-        covered[core] = np.isfinite(d)
+        covered[core] = _core_covered(g[core], s, tree, 0.5 * spacing + REACH * line_width,
+                                      layer_height)
     shell_share = float(covered[shell].mean()) if shell.any() else 1.0
     return float(covered.mean()), shell_share

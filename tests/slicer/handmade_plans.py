@@ -91,15 +91,18 @@ def box_plan(geometry: MachineGeometry, half: float = 5.0, n_layers: int = 10, *
 
 
 def two_part_plan(geometry: MachineGeometry, tilt_deg: float = 30.0, half: float = 5.0,
-                  n_root: int = 20, n_child: int = 10) -> tuple[PrintPlan, np.ndarray]:
+                  n_root: int = 20, n_child: int = 10, lift: float = 0.0
+                  ) -> tuple[PrintPlan, np.ndarray]:
     """An upright prism and a smaller prism tilted by ``tilt_deg`` about X on its top.
 
+    The child's base plane passes ``lift`` mm above the centre of the root's top (with no
+    lift, part of the root's top lies above the tilted base: the head must hit it).
     Returns the plan and the child's build direction (3,).
     """
     root = prism_layers(0, np.zeros(3), np.array([0.0, 0.0, 1.0]), half, n_root, geometry)
     t = np.radians(tilt_deg)
     d = np.array([0.0, -np.sin(t), np.cos(t)])
-    top = np.array([0.0, 0.0, n_root * H])
+    top = np.array([0.0, 0.0, n_root * H + lift])
     root[-1].interface_child = 1
     child = prism_layers(1, top, d, 2.0, n_child, geometry)
     sps = [SubpartPlan(0, None, None, None, np.array([0.0, 0.0, 1.0]), root),

@@ -1,0 +1,100 @@
+"""Replay check on hand-made plans: clean prints pass, overhangs and collisions are caught."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from handmade_plans import H, box_plan, prism_layers, prism_mesh, two_part_plan
+
+from kinematics.machine import MachineGeometry
+from slicer.gcode import MachineSetup, generate
+from slicer.gcode_reader import parse_lines
+from slicer.plan import PrintPlan, SubpartPlan
+from slicer.replay import replay_check
+from slicer.samples import to_manifold, to_trimesh
+from slicer.settings import ProcessSettings
+
+GEO = MachineGeometry()
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def _replay(plan: PrintPlan, mesh):
+    lines = generate(plan, ProcessSettings(), MachineSetup(GEO)).lines
+    return replay_check(parse_lines(lines), mesh)
+
+
+def _union(*meshes):
+    solid = to_manifold(meshes[0])
+    for m in meshes[1:]:
+        solid = solid + to_manifold(m)
+    return to_trimesh(solid)
+
+
+def test_clean_box_passes_every_figure():
+    rep = _replay(box_plan(GEO, n_layers=20), prism_mesh(np.zeros(3), UP, 5.0, 20 * H))
+    assert rep.inside >= 0.99 and rep.coverage >= 0.95 and rep.supported >= 0.99
+    assert rep.wall_supported >= 0.995 and rep.unsupported_wall_layers == []
+    assert rep.collisions == 0 and rep.ok
+
+
+def test_coverage_drops_when_the_model_is_larger_than_the_toolpaths():
+    rep = _replay(box_plan(GEO, n_layers=20), prism_mesh(np.zeros(3), UP, 5.0, 40 * H))
+    assert rep.coverage < 0.6
+
+
+def test_overhang_step_is_flagged_unsupported():
+    plan = box_plan(GEO, n_layers=20, shift=(2.0, 0.0), shift_from=10)
+    mesh = _union(prism_mesh(np.zeros(3), UP, 5.0, 10 * H),
+                  prism_mesh(np.array([2.0, 0.0, 10 * H]), UP, 5.0, 10 * H))
+    rep = _replay(plan, mesh)
+    assert rep.wall_supported < 0.995
+    assert "sub-part 0 layer 10" in rep.unsupported_wall_layers
+    assert "sub-part 0 layer 11" not in rep.unsupported_wall_layers  # stacked on layer 10
+    assert rep.supported < 0.99
+
+
+def test_tilted_child_over_a_clear_base_has_no_collision():
+    plan, d = two_part_plan(GEO, tilt_deg=30.0, lift=1.5)
+    mesh = _union(prism_mesh(np.zeros(3), UP, 5.0, 20 * H),
+                  prism_mesh(np.array([0.0, 0.0, 20 * H + 1.5]), d, 2.0, 10 * H))
+    rep = _replay(plan, mesh)
+    assert rep.collisions == 0
+    assert rep.inside >= 0.99
+
+
+def test_nozzle_inside_printed_material_is_flagged():
+    plan, d = two_part_plan(GEO, tilt_deg=30.0)  # the tilted base cuts into the root's top
+    mesh = _union(prism_mesh(np.zeros(3), UP, 5.0, 20 * H),
+                  prism_mesh(np.array([0.0, 0.0, 20 * H]), d, 2.0, 10 * H))
+    rep = _replay(plan, mesh)
+    assert rep.collisions > 0 and not rep.ok
+    assert any("sub-part 1" in m and "printed part (sub-part 0" in m
+               for m in rep.collision_messages)
+
+
+def test_carriage_hitting_a_tall_neighbour_is_flagged():
+    tower = prism_layers(0, np.zeros(3), UP, 3.0, 100, GEO)
+    low = prism_layers(1, np.array([12.0, 0.0, 0.0]), UP, 2.0, 5, GEO)
+    plan = PrintPlan(np.eye(4), [SubpartPlan(0, None, None, None, UP, tower),
+                                 SubpartPlan(1, 0, None, None, UP, low)])
+    mesh = _union(prism_mesh(np.zeros(3), UP, 3.0, 100 * H),
+                  prism_mesh(np.array([12.0, 0.0, 0.0]), UP, 2.0, 5 * H))
+    rep = _replay(plan, mesh)
+    assert rep.collisions > 0
+    assert any("sub-part 1, layer 0: the head hits the printed part (sub-part 0" in m
+               for m in rep.collision_messages)
+
+
+def test_tilted_print_on_the_platform_hits_the_platform():
+    d = np.array([0.0, -np.sin(np.radians(60)), np.cos(np.radians(60))])
+    layers = prism_layers(0, np.zeros(3), d, 3.0, 3, GEO)
+    plan = PrintPlan(np.eye(4), [SubpartPlan(0, None, None, None, d, layers)])
+    mesh = prism_mesh(np.zeros(3), d, 3.0, 3 * H)
+    rep = _replay(plan, mesh)
+    assert any("the head hits the platform" in m for m in rep.collision_messages)
+
+
+@pytest.mark.parametrize("name", ["inside", "coverage", "supported", "wall_supported"])
+def test_figures_are_shares(name):
+    rep = _replay(box_plan(GEO, n_layers=5), prism_mesh(np.zeros(3), UP, 5.0, 5 * H))
+    assert 0.0 <= getattr(rep, name) <= 1.0
