@@ -162,9 +162,10 @@ class SerialLink:
                 last = await _first(ahead)
                 yield last
         except errors.LinkError as err:
+            cause = _first_failure(ahead) or err
             for _, fut in ahead:
                 fut.cancel()
-            raise type(err)(err.reason, err.last_acked, last) from err
+            raise type(cause)(cause.reason, cause.last_acked, last) from cause
 
     async def query(self, command: str) -> Reply:
         """Send ``command`` in line and return the reply it produced.
@@ -313,3 +314,13 @@ async def _first(ahead: deque[tuple[int, asyncio.Future[int]]]) -> int:
     await fut
     ahead.popleft()
     return index
+
+
+def _first_failure(ahead: deque[tuple[int, asyncio.Future[int]]]) -> errors.LinkError | None:
+    """The error of the oldest failed line (the cause, when a later submit was refused)."""
+    for _, fut in ahead:
+        if fut.done() and not fut.cancelled():
+            exc = fut.exception()
+            if isinstance(exc, errors.LinkError):
+                return exc
+    return None
