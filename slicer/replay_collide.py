@@ -166,6 +166,7 @@ def _material_hits(tips: Samples, deposits: Samples, part: HeadPart, pitch: floa
     beads = deposits.p - deposits.u * (deposits.h[:, None] / 2.0)
     reps = voxel_representatives(beads, deposits.move, pitch)
     _, group = np.unique(np.round(tips.u, 9), axis=0, return_inverse=True)
+    group = group.ravel()
     hits: list[tuple[int, int]] = []
     for g in np.unique(group):
         ti, oi = _group_hits(tips, np.flatnonzero(group == g), beads[reps],

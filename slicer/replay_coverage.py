@@ -38,7 +38,7 @@ def _shell_covered(g: np.ndarray, s: Samples, tree: cKDTree, w: float, t: float
                    ) -> np.ndarray:
     r = float(np.hypot(REACH * w, s.h.max() + 0.25 * t))
     k = min(NEIGHBOURS, len(s))
-    dist, idx = tree.query(g, k=k, distance_upper_bound=r)
+    dist, idx = tree.query(g, k=k, distance_upper_bound=r, workers=-1)
     dist, idx = dist.reshape(len(g), k), idx.reshape(len(g), k)
     valid = np.isfinite(dist)
     j = np.where(valid, idx, 0)
@@ -53,7 +53,8 @@ def _shell_covered(g: np.ndarray, s: Samples, tree: cKDTree, w: float, t: float
 def _core_covered(g: np.ndarray, s: Samples, tree: cKDTree, lateral: float, t: float
                   ) -> np.ndarray:
     k = min(NEIGHBOURS, len(s))
-    dist, idx = tree.query(g, k=k, distance_upper_bound=float(np.hypot(lateral, 1.5 * t)))
+    dist, idx = tree.query(g, k=k, distance_upper_bound=float(np.hypot(lateral, 1.5 * t)),
+                           workers=-1)
     dist, idx = dist.reshape(len(g), k), idx.reshape(len(g), k)
     valid = np.isfinite(dist)
     rel = g[:, None, :] - s.p[np.where(valid, idx, 0)]

@@ -68,8 +68,12 @@ def geometry_from_header(parsed: ParsedGcode) -> MachineGeometry:
 
 
 def nozzle_axes(a: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Machine +Z in the platform frame for table angles (degrees), (n, 3)."""
-    return table_rotation(a, c)[..., 2, :]
+    """Machine +Z in the platform frame for table angles (degrees), (n, 3).
+
+    Computed once per distinct (A, C): a file holds few.
+    """
+    ac, inv = np.unique(np.column_stack([a, c]), axis=0, return_inverse=True)
+    return table_rotation(ac[:, 0], ac[:, 1])[:, 2, :][inv.ravel()]
 
 
 def _fractions(count: np.ndarray, ends: bool) -> tuple[np.ndarray, np.ndarray]:

@@ -26,7 +26,7 @@ OVERHANG_DEG = 45.0
 LATERAL_SLACK = 0.1  # × line width
 WALL_SLACK = 0.75  # × line width: wall points are this close to the surface
 BAD_LAYER_SHARE = 0.05
-NEIGHBOURS = 12
+NEIGHBOURS = 10
 
 
 def depth_limit(s: Samples, layer_height: float) -> np.ndarray:
@@ -73,7 +73,7 @@ def strict_support(s: Samples, layer_height: float, line_width: float,
     k = min(NEIGHBOURS, len(s))
     for chunk in np.array_split(np.arange(len(s)), max(1, len(s) // 100_000)):
         _, idx = tree.query(s.p[chunk] - s.u[chunk] * layer_height, k=k,
-                            distance_upper_bound=r)
+                            distance_upper_bound=r, workers=-1)
         idx = idx.reshape(len(chunk), k)
         valid = idx < len(s)
         below = np.where(valid, idx, 0)

@@ -1,0 +1,46 @@
+"""hostctl slice: offline slicing to checked G-code, one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from hostd.cli.main import main
+from slicer.samples import cylinder
+
+
+@pytest.fixture(scope="module")
+def stl(tmp_path_factory):
+    path = tmp_path_factory.mktemp("models") / "cyl.stl"
+    cylinder(radius=6.0, height=12.0).export(path)
+    return path
+
+
+def test_slice_writes_checked_gcode_and_summary(stl, tmp_path, capsys):
+    out, png = tmp_path / "out.gcode", tmp_path / "out.png"
+    rc = main(["slice", str(stl), "-o", str(out), "--layer-height", "0.3", "--preview",
+               str(png)])
+    assert rc == 0
+    lines = out.read_text().splitlines()
+    assert lines[0].startswith(";HOSTD_KINEMATICS ")
+    assert json.loads(lines[1].split(" ", 1)[1])["layer_height"] == 0.3
+    assert png.stat().st_size > 1000
+    text = capsys.readouterr().out
+    for word in ("sub-parts 1", "layers", "filament", "time", "replay: inside",
+                 "collisions 0", "seconds"):
+        assert word in text
+
+
+@pytest.mark.parametrize(("args", "message"), [
+    (["slice", "/nonexistent.stl", "-o", "x.gcode"], "/nonexistent.stl"),
+    (["slice", "{stl}", "-o", "x.gcode", "--layer-height", "0.9"], "--layer-height"),
+    (["slice", "{stl}", "-o", "x.gcode", "--config", "/nonexistent.yaml"], "no such file"),
+])
+def test_bad_input_is_one_line_and_nonzero(stl, tmp_path, capsys, args, message):
+    argv = [a.format(stl=stl) for a in args]
+    argv[argv.index("-o") + 1] = str(tmp_path / "x.gcode")
+    rc = main(argv)
+    err = capsys.readouterr().err.strip()
+    assert rc != 0 and message in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "x.gcode").exists()
