@@ -1,0 +1,91 @@
+"""Seconds per slicing stage, STL to checked G-code, with the paper's Table 1 comparison.
+
+Run: ``.venv/bin/python bench/slice.py [--heights 0.1 0.2 0.3] [models ...]``. For each model
+and layer height it slices five-axis (decompose → plan → G-code → read → replay) and planar
+(A = C = 0, no decomposition), and prints the seconds of every stage, the total wall and CPU
+time, and filament and time of both prints with the decrement (the paper's Table 1). Target:
+``pipe3-50k`` at 0.2 mm in under 10 s. On a shared machine wall time also measures the
+neighbours: CPU time is printed beside it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import trimesh
+
+from kinematics.machine import MachineGeometry
+from slicer import samples
+from slicer.pipeline import SliceResult, slice_model
+from slicer.printhead import Printhead
+from slicer.settings import ProcessSettings
+
+STAGES = ("load", "plan", "gcode", "read", "replay")
+
+
+def pipe3_50k(target: int = 50_000) -> trimesh.Trimesh:
+    """pipe3 with finer circles, split 1 → 4 until it has about ``target`` faces."""
+    mesh = samples.pipe3(segments=96)
+    while len(mesh.faces) * 4 <= target * 1.5:
+        mesh = mesh.subdivide()
+    return mesh
+
+
+MODELS = {"cylinder": samples.cylinder, "pipe2": samples.pipe2, "pipe3": samples.pipe3,
+          "pipe3-50k": pipe3_50k}
+
+
+def run(mesh: trimesh.Trimesh, height: float, planar: bool) -> tuple[SliceResult, float, float]:
+    """One slice: (result, wall s, CPU s)."""
+    wall, cpu = time.perf_counter(), time.process_time()
+    res = slice_model(mesh, ProcessSettings(layer_height=height), MachineGeometry(),
+                      Printhead.default(), planar=planar)
+    return res, time.perf_counter() - wall, time.process_time() - cpu
+
+
+def _row(name: str, faces: int, h: float, kind: str, res: SliceResult, wall: float,
+         cpu: float) -> str:
+    t = res.timings
+    stages = " ".join(f"{t.get(k, 0.0):>6.2f}" for k in STAGES)
+    rep = res.replay
+    return (f"{name:>10} {faces:>6} {h:>4.2f} {kind:>6} {res.subparts:>3} {stages} "
+            f"{wall:>7.2f} {cpu:>6.2f} {res.estimate['filament_mm']:>8.0f} "
+            f"{res.estimate['time_s']:>7.0f} {100 * rep['wall_supported']:>6.2f} "
+            f"{rep['collisions']:>4}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--heights", type=float, nargs="+", default=[0.1, 0.2, 0.3])
+    parser.add_argument("models", nargs="*", help=f"any of {', '.join(MODELS)} "
+                        "(default: pipe2 pipe3 at every height, pipe3-50k at 0.2)")
+    args = parser.parse_args()
+    unknown = set(args.models) - set(MODELS)
+    if unknown:
+        parser.error(f"unknown model(s) {', '.join(sorted(unknown))}")
+    jobs = ([(m, h) for m in args.models for h in args.heights] if args.models else
+            [(m, h) for m in ("pipe2", "pipe3") for h in args.heights] + [("pipe3-50k", 0.2)])
+    print(f"{'model':>10} {'faces':>6} {'h':>4} {'kind':>6} {'sp':>3} "
+          + " ".join(f"{k:>6}" for k in STAGES)
+          + f" {'wall s':>7} {'cpu s':>6} {'fil mm':>8} {'time s':>7} {'wall%':>6} {'coll':>4}")
+    table = []
+    for name, h in jobs:
+        mesh = MODELS[name]()
+        five, w5, c5 = run(mesh, h, planar=False)
+        print(_row(name, len(mesh.faces), h, "5-axis", five, w5, c5), flush=True)
+        flat, wp, cp = run(mesh, h, planar=True)
+        print(_row(name, len(mesh.faces), h, "planar", flat, wp, cp), flush=True)
+        table.append((name, h, flat.estimate, five.estimate))
+    print("\nTable 1 (planar vs five-axis; the paper's planar prints include support)")
+    print(f"{'model':>10} {'h':>4} {'fil planar':>10} {'fil 5ax':>8} {'dec %':>6} "
+          f"{'t planar':>9} {'t 5ax':>7} {'dec %':>6}")
+    for name, h, p, f in table:
+        fp, ff, tp, tf = (float(p["filament_mm"]), float(f["filament_mm"]),
+                          float(p["time_s"]), float(f["time_s"]))
+        print(f"{name:>10} {h:>4.2f} {fp:>10.0f} {ff:>8.0f} {100 * (fp - ff) / fp:>6.2f} "
+              f"{tp:>9.0f} {tf:>7.0f} {100 * (tp - tf) / tp:>6.2f}")
+
+
+if __name__ == "__main__":
+    main()
