@@ -388,7 +388,8 @@ class Protocol:
 
     def _handshake_ok(self, now: float) -> None:
         if self._after_resend is not None:
-            self._send_handshake(now)
+            # The error ok of a stale line (or of a garbled M110: the timeout retries it).
+            self._after_resend = None
             return
         self._inflight.clear()
         self._next = 1

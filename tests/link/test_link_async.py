@@ -35,7 +35,8 @@ def board(link: SerialLink) -> Firmware:
 
 
 def executed(firmware: Firmware) -> list[str]:
-    return [t for n, t in firmware.log if n is not None and n > 0 and t not in ("M105", "M114", "M115")]
+    queries = ("M105", "M114", "M115")
+    return [t for n, t in firmware.log if n is not None and n > 0 and t not in queries]
 
 
 async def collect(link: SerialLink, lines: list[str]) -> list[int]:

@@ -1,0 +1,144 @@
+"""The pure protocol state machine, driven by hand-written firmware replies."""
+
+from __future__ import annotations
+
+import pytest
+
+from hostd.link.actions import Acked, Action, Connected, Failed, Write
+from hostd.link.errors import (
+    EmergencyStop,
+    FirmwareHalted,
+    FirmwareReset,
+    LinkLost,
+    ResendLoop,
+)
+from hostd.link.protocol import Protocol
+from hostd.link.settings import LinkSettings
+
+
+def writes(actions: list[Action]) -> list[str]:
+    return [a.data.decode().strip() for a in actions if isinstance(a, Write)]
+
+
+def acks(actions: list[Action]) -> list[int]:
+    return [a.line for a in actions if isinstance(a, Acked)]
+
+
+def failures(actions: list[Action]) -> list[object]:
+    return [a.error for a in actions if isinstance(a, Failed)]
+
+
+def ready(**kw: object) -> Protocol:
+    p = Protocol(LinkSettings(**kw))  # type: ignore[arg-type]
+    assert writes(p.start(0.0)) == ["N0 M110 N0*125"]
+    assert any(isinstance(a, Connected) for a in p.receive("ok", 0.0))
+    return p
+
+
+def test_window_keeps_unacknowledged_bytes_within_the_buffer() -> None:
+    p = ready(rx_buffer_bytes=63)
+    sent: list[str] = []
+    for i in range(10):
+        sent += writes(p.submit(f"G1 X{i}.000 Y{i}.000", 0.0)[1])
+    assert sum(len(s) + 1 for s in sent) <= 63
+    assert sent[0].startswith("N1 G1 X0.000")
+    more = writes(p.receive("ok", 0.1))
+    assert more and more[0].startswith(f"N{len(sent) + 1} ")
+
+
+def test_pingpong_has_one_line_in_flight() -> None:
+    p = ready(flow_control="pingpong")
+    first = writes(p.submit("G28", 0.0)[1])
+    second = writes(p.submit("G1 X1", 0.0)[1])
+    assert len(first) == 1 and second == []
+    actions = p.receive("ok", 0.1)
+    assert acks(actions) == [1] and writes(actions)[0].startswith("N2 G1 X1")
+
+
+def test_resend_rewinds_and_duplicate_requests_are_ignored() -> None:
+    p = ready()
+    for cmd in ("G1 X1", "G1 X2", "G1 X3"):
+        p.submit(cmd, 0.0)
+    # Line 1 garbled: line 1 and the lines after it are each rejected with "Resend: 1".
+    resent = []
+    for _ in range(3):
+        p.receive("Error:checksum mismatch, Last Line: 0", 0.1)
+        resent += writes(p.receive("Resend: 1", 0.1))
+        resent += writes(p.receive("ok", 0.1))
+    assert [r.split()[0] for r in resent] == ["N1", "N2", "N3"]
+    assert p.counters.duplicate_resends == 2 and p.counters.lines_resent == 3
+    actions = p.receive("ok", 0.2) + p.receive("ok", 0.2) + p.receive("ok", 0.2)
+    assert acks(actions) == [1, 2, 3]
+
+
+def test_a_line_rejected_too_often_fails_the_job() -> None:
+    p = ready(resend_limit=3)
+    p.submit("G1 X1", 0.0)
+    errors: list[object] = []
+    for _ in range(4):
+        errors += failures(p.receive("Resend: 1", 0.1))
+        p.receive("ok", 0.1)
+    assert len(errors) == 1 and isinstance(errors[0], ResendLoop)
+    assert "line 1" in str(errors[0])
+
+
+def test_advanced_ok_resynchronises_after_lost_oks() -> None:
+    p = ready()
+    for i in range(3):
+        p.submit(f"G1 X{i}", 0.0)
+    assert acks(p.receive("ok N3 P10 B3", 0.1)) == [3]  # the oks of 1 and 2 were lost
+
+
+def test_m105_answer_is_a_barrier_after_a_timeout() -> None:
+    p = ready(ok_timeout=1.0)
+    p.submit("G1 X1", 0.0)
+    p.submit("G1 X2", 0.0)
+    assert p.deadline() == pytest.approx(1.0)
+    nudge = writes(p.tick(1.0))
+    assert nudge == ["N3 M105*36"]
+    assert acks(p.receive("ok T:20.0 /0.0 B:20.0 /0.0", 1.1)) == [2]
+
+
+def test_no_answer_to_the_nudge_loses_the_link() -> None:
+    p = ready(ok_timeout=1.0)
+    p.submit("G1 X1", 0.0)
+    p.tick(1.0)
+    lost = failures(p.tick(2.0))
+    assert len(lost) == 1 and isinstance(lost[0], LinkLost)
+
+
+def test_busy_extends_the_timeout() -> None:
+    p = ready(ok_timeout=1.0)
+    p.submit("M109 S210", 0.0)
+    p.receive("echo:busy: processing", 0.9)
+    assert p.deadline() == pytest.approx(1.9)
+    assert writes(p.tick(1.5)) == []
+
+
+def test_start_banner_mid_print_interrupts_at_the_last_ack_and_handshakes_again() -> None:
+    p = ready()
+    for i in range(3):
+        p.submit(f"G1 X{i}", 0.0)
+    p.receive("ok", 0.1)
+    actions = p.receive("start", 0.2)
+    (error,) = failures(actions)
+    assert isinstance(error, FirmwareReset) and error.last_acked == 1
+    assert writes(actions) == ["N0 M110 N0*125"] and p.state == "handshake"
+
+
+@pytest.mark.parametrize("line", ["Error:Printer halted. kill() called!", "!!"])
+def test_halt_fails_the_job(line: str) -> None:
+    p = ready()
+    p.submit("G1 X1", 0.0)
+    (error,) = failures(p.receive(line, 0.1))
+    assert isinstance(error, FirmwareHalted) and p.state == "halted"
+
+
+def test_m112_bypasses_a_full_window() -> None:
+    p = ready(rx_buffer_bytes=40)
+    for i in range(20):
+        p.submit(f"G1 X{i}.0000 Y{i}.0000", 0.0)
+    actions = p.emergency_stop(0.0)
+    assert writes(actions) == ["M112"]
+    assert isinstance(failures(actions)[0], EmergencyStop)
+    assert writes(p.receive("ok", 0.1)) == []  # nothing more is sent
