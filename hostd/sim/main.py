@@ -1,0 +1,92 @@
+"""``hostd-sim``: serve the emulated board on a pseudo-terminal.
+
+``hostd-sim --pty`` prints the pty path on one line of stdout and serves until killed; point
+``serial.port`` (or any host) at that path.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import os
+import signal
+import sys
+import tty
+from dataclasses import fields
+
+from hostd.sim.server import Emulator
+from hostd.sim.settings import SimSettings
+
+
+class SimError(Exception):
+    """The emulator cannot be served."""
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
+    """Command-line options: every :class:`SimSettings` field is a ``--flag``."""
+    parser = argparse.ArgumentParser(prog="hostd-sim", description=__doc__)
+    parser.add_argument("--pty", action="store_true", required=True,
+                        help="serve on a new pseudo-terminal and print its path")
+    defaults = SimSettings()
+    for f in fields(SimSettings):
+        value = getattr(defaults, f.name)
+        flag = "--" + f.name.replace("_", "-")
+        if isinstance(value, bool):
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, default=value)
+        else:
+            parser.add_argument(flag, type=type(value), default=value)
+    return parser.parse_args(argv)
+
+
+def settings_from_args(args: argparse.Namespace) -> SimSettings:
+    """The :class:`SimSettings` the options describe."""
+    return SimSettings(**{f.name: getattr(args, f.name) for f in fields(SimSettings)})
+
+
+async def serve_pty(settings: SimSettings) -> None:
+    """Open a pty, print its path, and serve the emulator on it until cancelled."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    os.set_blocking(master, False)
+    print(os.ttyname(slave), flush=True)
+    loop = asyncio.get_running_loop()
+    emulator = Emulator(settings, lambda data: _write_all(master, data))
+    stop = asyncio.Event()
+    loop.add_reader(master, _on_readable, master, emulator)
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    try:
+        await stop.wait()
+    finally:
+        loop.remove_reader(master)
+        emulator.close()
+        os.close(master)
+        os.close(slave)
+
+
+def _on_readable(fd: int, emulator: Emulator) -> None:
+    with contextlib.suppress(BlockingIOError, InterruptedError):
+        data = os.read(fd, 4096)
+        emulator.feed(data)
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    """Write to the pty master; when no host drains it, replies are dropped like on a wire."""
+    with contextlib.suppress(BlockingIOError, InterruptedError):
+        os.write(fd, data)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point of ``hostd-sim``."""
+    args = parse_args(argv)
+    try:
+        asyncio.run(serve_pty(settings_from_args(args)))
+    except OSError as exc:
+        print(f"hostd-sim: {SimError(exc)}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,37 @@
+"""``hostd-sim --pty`` as a separate process, driven by the link through the real port path."""
+
+from __future__ import annotations
+
+import asyncio
+import sys
+
+import pytest
+
+from hostd.link import LinkSettings, SerialLink
+from hostd.link.replies import Position
+
+
+@pytest.mark.asyncio
+async def test_link_streams_through_the_pty_emulator() -> None:
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "hostd.sim.main", "--pty", "--lost-step-axis", "C",
+        "--lost-step-degrees", "0.5", "--lost-step-at-move", "1",
+        stdout=asyncio.subprocess.PIPE)
+    try:
+        async with asyncio.timeout(30):
+            assert proc.stdout is not None
+            path = (await proc.stdout.readline()).decode().strip()
+            assert path.startswith("/dev/")
+            link = SerialLink(LinkSettings(port=path, ok_timeout=2.0))
+            await link.connect()
+            lines = [f"G1 X{i % 7} C{i} F6000" for i in range(300)]
+            acked = [i async for i in link.stream(lines)]
+            pos = await link.query("M114")
+            status = link.status()
+            await link.close()
+    finally:
+        proc.terminate()
+        await proc.wait()
+    assert acked == list(range(300))
+    assert isinstance(pos, Position) and pos.axes["C"] == pytest.approx(299.5)
+    assert status["firmware_name"].startswith("Marlin")
