@@ -1,6 +1,6 @@
 """Seconds per slicing stage, STL to checked G-code, with the paper's Table 1 comparison.
 
-Run: ``.venv/bin/python bench/slice.py [--heights 0.1 0.2 0.3] [models ...]``. For each model
+Run: ``.venv/bin/python bench/slice.py [--heights 0.1 0.2 0.3] [--models pipe2 ...]``. For each model
 and layer height it slices five-axis (decompose → plan → G-code → read → replay) and planar
 (A = C = 0, no decomposition), and prints the seconds of every stage, the total wall and CPU
 time, and filament and time of both prints with the decrement (the paper's Table 1). Target:
@@ -58,7 +58,7 @@ def _row(name: str, faces: int, h: float, kind: str, res: SliceResult, wall: flo
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--heights", type=float, nargs="+", default=[0.1, 0.2, 0.3])
-    parser.add_argument("models", nargs="*", help=f"any of {', '.join(MODELS)} "
+    parser.add_argument("--models", nargs="*", default=[], help=f"any of {', '.join(MODELS)} "
                         "(default: pipe2 pipe3 at every height, pipe3-50k at 0.2)")
     args = parser.parse_args()
     unknown = set(args.models) - set(MODELS)

@@ -93,27 +93,29 @@ def _rounded(block: np.ndarray) -> np.ndarray:
     return out
 
 
+_WORDS = ("X%.3f", "Y%.3f", "Z%.3f", "A%.4f", "C%.4f", "E%.5f", "F%.0f")
+
+
 def _format_block(block: np.ndarray, prev: np.ndarray) -> list[str]:
-    """Format rows, writing only axes whose printed value changes; updates ``prev``."""
+    """Format rows, writing only axes whose printed value changes; updates ``prev``.
+
+    Rows are grouped by which words they carry, and each group is formatted with one
+    ``%`` template: no per-word Python work.
+    """
     r = _rounded(block)
     before = np.vstack([prev[None, :6], r[:-1]])
     changed = ~(r == before) & np.isfinite(r)  # NaN before: written; NaN now: never
     e = np.round(block[:, E], E_DECIMALS)
-    names = ("X", "Y", "Z", "A", "C")
-    fmts = (XYZ_DECIMALS,) * 3 + (AC_DECIMALS,) * 2
-    out = []
-    for i in range(len(block)):
-        words = ["G1" if block[i, G] else "G0"]
-        ch = changed[i]
-        ri = r[i]
-        for k in range(5):
-            if ch[k]:
-                words.append(f"{names[k]}{ri[k]:.{fmts[k]}f}")
-        if e[i] != 0.0:
-            words.append(f"E{e[i]:.{E_DECIMALS}f}")
-        if ch[5]:
-            words.append(f"F{ri[5]:.0f}")
-        if len(words) > 1:
-            out.append(" ".join(words))
+    vals = np.column_stack([r[:, :5], e, r[:, 5]])
+    mask = np.column_stack([changed[:, :5], e != 0.0, changed[:, 5]])
+    code = mask.astype(np.int64) @ (1 << np.arange(7)) + 128 * (block[:, G] != 0)
+    out = np.empty(len(block), dtype=object)
+    for c in np.unique(code):
+        idx = np.flatnonzero(code == c)
+        cols = [k for k in range(7) if (c >> k) & 1]
+        if not cols:
+            continue
+        fmt = ("G1 " if c & 128 else "G0 ") + " ".join(_WORDS[k] for k in cols)
+        out[idx] = [fmt % tuple(row) for row in vals[np.ix_(idx, cols)].tolist()]
     prev[:6] = r[-1]
-    return out
+    return [line for line in out.tolist() if line is not None]

@@ -97,6 +97,10 @@ class _State:
         self.transitions: list[dict] = []
 
 
+_COLUMN = {"X": 0, "Y": 1, "Z": 2, "A": 3, "C": 4, "F": 5, "E": 6}
+_MOVES = {"G0": 0, "G00": 0, "G1": 1, "G01": 1}
+
+
 def _words(body: str, n: int) -> dict[str, float]:
     out = {}
     for tok in body.split()[1:]:
@@ -108,21 +112,34 @@ def _words(body: str, n: int) -> dict[str, float]:
     return out
 
 
-def _move(st: _State, words: dict[str, float], g: int, n: int) -> None:
+def _move(st: _State, tokens: list[str], g: int, n: int) -> None:
     nan = float("nan")
-    e = words.get("E", 0.0)
-    if not st.rel_e and "E" in words:
+    row = [nan, nan, nan, nan, nan, nan, nan]
+    col = _COLUMN
+    try:
+        for tok in tokens:
+            k = col.get(tok[0].upper())
+            if k is not None:
+                row[k] = float(tok[1:])
+    except ValueError:
+        raise GcodeFormatError(f"line {n}: bad word {tok!r}") from None
+    e = row[6]
+    if e != e:  # no E word
+        e = 0.0
+    elif not st.rel_e:
         e, st.e_abs = e - st.e_abs, e
-    f = words.get("F", nan)
-    st.vals.append([words.get(a, nan) for a in AXES] + [f / 60.0])
+    row[5] /= 60.0
+    st.vals.append(row[:6])
     st.home.append(False)
     st.meta.append((e, g, n, st.sub, st.lay, st.seq, st.trans))
 
 
 def _command(st: _State, body: str, n: int) -> None:
-    head = body.split(None, 1)[0].upper()
-    if head in ("G0", "G1", "G00", "G01"):
-        _move(st, _words(body, n), 1 if head in ("G1", "G01") else 0, n)
+    tokens = body.split()
+    head = tokens[0].upper()
+    g = _MOVES.get(head)
+    if g is not None:
+        _move(st, tokens[1:], g, n)
     elif head == "G91":
         raise GcodeFormatError(f"line {n}: G91 relative positioning is not supported")
     elif head == "M82":
