@@ -1,11 +1,11 @@
 """Seconds per slicing stage, STL to checked G-code, with the paper's Table 1 comparison.
 
 Run: ``.venv/bin/python bench/slice.py [--heights 0.1 0.2 0.3] [--models pipe2 ...]``.
-For each model and layer height it slices five-axis (decompose → plan → G-code → read →
-replay) and planar (A = C = 0, no decomposition), and prints the seconds of every stage, the total wall and CPU
-time, and filament and time of both prints with the decrement (the paper's Table 1). Target:
-``pipe3-50k`` at 0.2 mm in under 10 s. On a shared machine wall time also measures the
-neighbours: CPU time is printed beside it.
+Each model and layer height is sliced five-axis (decompose, plan, G-code, read, replay) and
+planar (A = C = 0, no decomposition). Printed: seconds per stage, total wall and CPU time,
+filament and time of both prints and the decrement (the paper's Table 1). Target: pipe3-50k
+at 0.2 mm in under 10 s. On a shared machine the wall time also measures the neighbours, so
+the CPU time is printed beside it.
 """
 
 from __future__ import annotations
