@@ -52,6 +52,21 @@ class InFlight:
         self.bytes += len(sent.item.data)
         self.lines += 1
 
+    def beyond(self, skip: int) -> tuple[int, int]:
+        """Lines and bytes holding credit, leaving out the oldest ``skip`` of them."""
+        if skip <= 0:
+            return self.lines, self.bytes
+        lines = nbytes = 0
+        for sent in self._entries:
+            if not sent.counted:
+                continue
+            if skip > 0:
+                skip -= 1
+                continue
+            lines += 1
+            nbytes += len(sent.item.data)
+        return lines, nbytes
+
     def first_from(self, number: int) -> Sent | None:
         """The oldest transmission of a line numbered ``number`` or higher."""
         for sent in self._entries:

@@ -181,6 +181,8 @@ class Protocol:
         self._resend_counts: dict[int, int] = {}
         self._since_ok: list[Reply] = []
         self._m105: deque[int] = deque()  # M105 transmissions awaiting their ok T:
+        self._slots_seen = 0  # largest ADVANCED_OK B: the firmware's command queue size
+        self._queued_in_firmware = 0  # oldest lines in flight known to sit in that queue
         self.window = SendWindow(self.settings.flow_control, self.settings.rx_buffer_bytes)
 
     def _restart(self, now: float) -> None:
@@ -217,7 +219,8 @@ class Protocol:
                 return
             item = queue[0]
             size = len(item.data) if item.data else len(item.command) + 12
-            if not self.window.fits(self._inflight.lines, self._inflight.bytes, size):
+            lines, nbytes = self._inflight.beyond(self._queued_in_firmware)
+            if not self.window.fits(lines, nbytes, size):
                 return
             queue.popleft()
             self._transmit(item, now)
@@ -249,6 +252,7 @@ class Protocol:
         if self.state == "handshake":
             self._handshake_ok(now)
             return
+        self._note_queue(ok)
         if self._after_resend is not None:
             rejected = self._inflight.first_from(self._after_resend)
             self._after_resend = None
@@ -259,6 +263,19 @@ class Protocol:
         if line <= self._executed:
             return
         self._execute_through(line, ok, now)
+
+    def _note_queue(self, ok: Ok) -> None:
+        """ADVANCED_OK: lines waiting in the command queue no longer use the receive buffer.
+
+        At the ``ok``, ``B`` slots are free, so ``max B - B`` of the oldest unexecuted lines
+        are in the queue; until the next ``ok`` that can only grow (lines move from the
+        receive buffer into the queue), so leaving them out of the credit stays safe.
+        """
+        if ok.buffer_free is None:
+            self._queued_in_firmware = 0
+            return
+        self._slots_seen = max(self._slots_seen, ok.buffer_free)
+        self._queued_in_firmware = self._slots_seen - ok.buffer_free
 
     def _executed_by(self, ok: Ok) -> int:
         """The line number this success ``ok`` shows executed."""
@@ -419,6 +436,7 @@ class Protocol:
         # flight no longer hold credit. A line being resent is the tickle it waits for;
         # otherwise a numbered M105, whose ``ok T:`` also resynchronises the ok count.
         self._inflight.uncount()
+        self._queued_in_firmware = 0
         self._m105.clear()
         if not self._resend:
             self._transmit(Item(NUDGE, None, "nudge"), now)

@@ -97,7 +97,11 @@ class Firmware:
         self._emergency_parser(chunk)
         if self.halted:
             return
-        room = self.settings.rx_buffer_bytes - len(self.rx)
+        if len(self.queue) < self.settings.queue_slots and b"\n" not in self.rx:
+            # The main loop is reading: bytes flow on into its line buffer as they arrive.
+            room = max(self.settings.rx_buffer_bytes, 96 + len(self.rx))
+        else:
+            room = self.settings.rx_buffer_bytes - len(self.rx)
         if len(chunk) > room:
             self.dropped_bytes += len(chunk) - max(room, 0)
             chunk = chunk[:max(room, 0)]

@@ -1,0 +1,103 @@
+"""Streaming throughput of the serial link through the emulated board on a pty.
+
+For each baud rate, receive buffer and flow-control mode, ``hostd-sim --pty --throttle`` runs
+in its own process (wire limited to baud/10 bytes/s both ways, planner on a simulated clock so
+the wire is the bottleneck) and this process streams a five-axis job through
+``SerialLink``. Printed: lines/s, wire bytes/s, the share of the wire limit, resent lines and
+host CPU seconds per 1000 lines.
+
+Run: ``.venv/bin/python bench/stream.py [--lines N]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import sys
+import time
+
+from hostd.link import LinkSettings, SerialLink, frame
+
+
+def planar_job(n: int) -> list[str]:
+    """Typical planar slicer output: ``G1 X.. Y.. E..`` lines of about 30 bytes."""
+    out = ["G28", "G90", "M83", "G92 E0"]
+    for i in range(n - len(out)):
+        t = i * 0.05
+        out.append(f"G1 X{250 + 40 * math.cos(t):.2f} Y{250 + 40 * math.sin(t):.2f} "
+                   f"E{0.021 + 0.002 * math.sin(t):.4f}")
+    return out
+
+
+def five_axis_job(n: int) -> list[str]:
+    """A sliced-looking job: layer moves with A/C tilts, extrusion, a fan change per layer."""
+    out = ["G28", "G90", "M83", "G92 E0"]
+    for i in range(n - len(out)):
+        if i % 400 == 0:
+            out.append(f"M106 S{(i // 400 * 37) % 256}")
+            continue
+        t = i * 0.05
+        out.append(f"G1 X{250 + 40 * math.cos(t):.3f} Y{250 + 40 * math.sin(t):.3f} "
+                   f"Z{100 + i * 0.002:.3f} A{15 * math.sin(t / 9):.3f} C{(t * 8) % 360:.3f} "
+                   f"E{0.021 + 0.002 * math.sin(t):.5f}")
+    return out
+
+
+async def run_case(baud: int, buffer: int, mode: str, lines: list[str]) -> dict[str, float]:
+    """Stream ``lines`` once; return the measured figures.
+
+    ``mode``: ``pingpong``, ``window`` (byte credit of the receive buffer) or ``window+aok``
+    (the board sends ADVANCED_OK, so lines waiting in its command queue free credit).
+    """
+    flow = mode.split("+")[0]
+    aok = ["--advanced-ok"] if mode.endswith("+aok") else []
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "hostd.sim.main", "--pty", "--throttle", "--baud", str(baud),
+        "--rx-buffer-bytes", str(buffer), *aok, stdout=asyncio.subprocess.PIPE)
+    try:
+        assert proc.stdout is not None
+        path = (await proc.stdout.readline()).decode().strip()
+        link = SerialLink(LinkSettings(port=path, baud=baud, flow_control=flow,
+                                       rx_buffer_bytes=buffer, ok_timeout=5.0))
+        await link.connect()
+        cpu0, t0 = time.process_time(), time.perf_counter()
+        sent0 = link.status()["lines_sent"]
+        count = 0
+        async for _ in link.stream(lines):
+            count += 1
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+        status = link.status()
+        await link.close()
+    finally:
+        proc.terminate()
+        await proc.wait()
+    wire = sum(len(frame(i + sent0 + 1, c)) + 1 for i, c in enumerate(lines))
+    return {"lines_s": count / wall, "bytes_s": wire / wall, "share": wire / wall / (baud / 10),
+            "resent": status["lines_resent"], "cpu_per_1000": cpu / count * 1000,
+            "acked": count}
+
+
+async def main(n: int) -> None:
+    print(f"{'job':>9} {'baud':>7} {'buffer':>6} {'mode':>10} {'lines/s':>8} {'bytes/s':>8} "
+          f"{'wire %':>6} {'resent':>6} {'cpu s/1000':>10}")
+    for job, make in (("planar", planar_job), ("five-axis", five_axis_job)):
+        await run_job(job, make(n))
+
+
+async def run_job(job: str, lines: list[str]) -> None:
+    """Every baud rate, buffer size and mode for one job."""
+    for baud in (115200, 250000):
+        for buffer in (127, 63):
+            for flow in ("pingpong", "window", "window+aok"):
+                r = await run_case(baud, buffer, flow, lines)
+                assert r["acked"] == len(lines)
+                print(f"{job:>9} {baud:>7} {buffer:>6} {flow:>10} {r['lines_s']:>8.0f} "
+                      f"{r['bytes_s']:>8.0f} {r['share'] * 100:>5.1f}% {r['resent']:>6.0f} "
+                      f"{r['cpu_per_1000']:>10.3f}", flush=True)
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--lines", type=int, default=1000)
+    asyncio.run(main(parser.parse_args().lines))
