@@ -35,11 +35,11 @@ from slicer.layers import (
     march_layers,
 )
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
-from slicer.planes2d import from_plane, plane_frame, section, to_manifold
+from slicer.planes2d import from_plane, plane_frame, polygonal, section, slicing_solid
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 from slicer.skeleton import SkeletonCurve, line_curve, skeleton_curve
-from slicer.toolpaths import FillSpec, Path2D, layer_paths
+from slicer.toolpaths import FillSpec, Path2D, layer_paths, shell
 from slicer.zones import solid_zones
 
 __all__ = ["SlicingError", "plan_planar", "plan_print"]
@@ -180,7 +180,7 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
     ``base`` is (point, normal, upright): an upright part (the root, the planar control) is
     sliced along the vertical through its base centre; others along their skeleton curve.
     """
-    solid = to_manifold(mesh)
+    solid = slicing_solid(mesh)
     centre, _, _ = _base_centre(solid, base[0], base[1], settings.layer_height)
     timer.lap("sections")
     if base[2]:
@@ -206,7 +206,7 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
 
 def _child_base(index: int, mesh: trimesh.Trimesh, point: np.ndarray, normal: np.ndarray,
                 t: float) -> ChildBase:
-    _, sec, frame = _base_centre(to_manifold(mesh), point, normal, t)
+    _, sec, frame = _base_centre(slicing_solid(mesh), point, normal, t)
     return ChildBase(index, np.asarray(point, dtype=float), frame, sec)
 
 
@@ -214,16 +214,19 @@ def _build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float,
                   settings: ProcessSettings, grounded: bool, bases: list[ChildBase],
                   timer: _Timer) -> list[Layer]:
     """Zones, toolpaths and plan Layers of one sub-part."""
-    solids = solid_zones(layers, settings.solid_layers, grounded)
+    spec = _spec(settings)
+    shells = [shell(lp.region, spec) for lp in layers]
+    timer.lap("toolpaths")
+    solids = solid_zones(layers, settings.solid_layers, grounded, [s.domain for s in shells])
     t = settings.layer_height
     depth = settings.interface_layers * t
     izones, owners = interface_zones(layers, bases, depth, t, settings.line_width)
     timer.lap("zones")
     out, here = [], np.zeros(2)
-    spec = _spec(settings)
     for i, (lp, (a, c)) in enumerate(zip(layers, poses, strict=True)):
-        paths2d = layer_paths(lp.region, shapely.union(solids[i], izones[i]), izones[i], spec,
-                              i, here)
+        solid = solids[i] if izones[i].is_empty else polygonal(
+            shapely.union(solids[i], izones[i]), valid=True)
+        paths2d = layer_paths(lp.region, solid, izones[i], spec, i, here, shells[i])
         if paths2d:
             here = paths2d[-1].xy[-1]
         first_child = i == 0 and not grounded

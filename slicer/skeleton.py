@@ -154,13 +154,22 @@ def solid_proxy(mesh: trimesh.Trimesh, cells: int = PROXY_CELLS
     closed |= occ
     sdf = ndimage.distance_transform_edt(closed) - ndimage.distance_transform_edt(~closed)
     sdf = ndimage.gaussian_filter(sdf.astype(float), 0.7)
-    top = lo + pitch * (np.asarray(shape[::-1]) - 1)
-    out = m3.Manifold.level_set(_trilinear(sdf, lo, pitch), [*lo, *top], pitch, 0.0)
+    box = _level_box(closed, lo, pitch)
+    out = m3.Manifold.level_set(_trilinear(sdf, lo, pitch), box, pitch, 0.0)
     if out.is_empty() or out.status() != m3.Error.NoError:
         return None
     m = out.to_mesh()
     return (np.asarray(m.vert_properties, dtype=float)[:, :3],
             np.asarray(m.tri_verts, dtype=np.int64))
+
+
+def _level_box(closed: np.ndarray, lo: np.ndarray, pitch: float) -> list[float]:
+    """Bounds [x0, y0, z0, x1, y1, z1] of the occupied nodes grown by two pitches (the level
+    set is only evaluated there: the dilation padding of the grid is empty)."""
+    idx = np.argwhere(closed)  # (k, 3) in z, y, x order
+    a = lo + pitch * (idx.min(axis=0)[::-1] - 2)
+    b = lo + pitch * (idx.max(axis=0)[::-1] + 2)
+    return [*a, *b]
 
 
 def _occupancy(solid: m3.Manifold, lo: np.ndarray, pitch: float,
@@ -177,19 +186,29 @@ def _occupancy(solid: m3.Manifold, lo: np.ndarray, pitch: float,
 
 
 def _trilinear(grid: np.ndarray, lo: np.ndarray, pitch: float):
-    """A scalar callable f(x, y, z) interpolating ``grid`` (z, y, x order) trilinearly."""
-    hi = np.asarray(grid.shape) - 2
-    g = grid
+    """A scalar callable f(x, y, z) interpolating ``grid`` (z, y, x order) trilinearly.
+
+    Manifold's ``level_set`` calls it once per lattice point from C++, so it works on nested
+    Python lists (numpy scalar indexing costs more than the arithmetic).
+    """
+    g = grid.tolist()
+    hz, hy, hx = (n - 2 for n in grid.shape)
+    x0, y0, z0 = (float(v) for v in lo)
+    inv = 1.0 / pitch
 
     def f(x: float, y: float, z: float) -> float:
-        fi, fj, fk = (z - lo[2]) / pitch, (y - lo[1]) / pitch, (x - lo[0]) / pitch
-        i, j, k = (int(min(max(v, 0), h)) for v, h in zip((fi, fj, fk), hi, strict=True))
+        fi, fj, fk = (z - z0) * inv, (y - y0) * inv, (x - x0) * inv
+        i = min(max(int(fi), 0), hz)
+        j = min(max(int(fj), 0), hy)
+        k = min(max(int(fk), 0), hx)
         a, b, c = fi - i, fj - j, fk - k
-        c00 = g[i, j, k] * (1 - c) + g[i, j, k + 1] * c
-        c01 = g[i, j + 1, k] * (1 - c) + g[i, j + 1, k + 1] * c
-        c10 = g[i + 1, j, k] * (1 - c) + g[i + 1, j, k + 1] * c
-        c11 = g[i + 1, j + 1, k] * (1 - c) + g[i + 1, j + 1, k + 1] * c
-        return float((c00 * (1 - b) + c01 * b) * (1 - a) + (c10 * (1 - b) + c11 * b) * a)
+        p0, p1 = g[i], g[i + 1]
+        r00, r01, r10, r11 = p0[j], p0[j + 1], p1[j], p1[j + 1]
+        c00 = r00[k] + (r00[k + 1] - r00[k]) * c
+        c01 = r01[k] + (r01[k + 1] - r01[k]) * c
+        c10 = r10[k] + (r10[k + 1] - r10[k]) * c
+        c11 = r11[k] + (r11[k + 1] - r11[k]) * c
+        return (c00 + (c01 - c00) * b) * (1 - a) + (c10 + (c11 - c10) * b) * a
 
     return f
 

@@ -9,9 +9,11 @@ Neighbouring regions live in other (slightly turned) planes; they are projected 
 into layer i's frame with an affine map (:func:`slicer.planes2d.map_between`), exact for
 parallel planes and within ρ·(1 − cos Δθ) otherwise.
 
-Consecutive sections of a prismatic stretch are the same polygon, and overlaying coincident
-edges is GEOS's slowest case: neighbours equal to R vertex by vertex (within
-:data:`TOL.same`) are recognised first and skip the boolean operations.
+Only the fill domain D_i (the area inside the perimeters where fill lines go) is ever printed
+solid, so the zone is computed as D_i − ∩_j R_j: a layer without a fill domain (a thin wall)
+costs nothing, and D_i is an inward offset of R_i, so the booleans never overlay coincident
+edges (GEOS's slowest case); a neighbour equal to R_i vertex by vertex (within
+:data:`TOL.same`, a prismatic stretch) covers D_i and is skipped.
 """
 
 from __future__ import annotations
@@ -39,21 +41,26 @@ def _neighbours(layers: Sequence[LayerPlane], i: int, js: Sequence[int],
     return mapped
 
 
-def exposed(region: BaseGeometry, neighbours: list[BaseGeometry] | None) -> BaseGeometry:
-    """The part of ``region`` not covered by every neighbour (all of it if one is missing)."""
-    if neighbours is None:
-        return region
+def exposed(domain: BaseGeometry, region: BaseGeometry,
+            neighbours: list[BaseGeometry] | None) -> BaseGeometry:
+    """The part of ``domain`` ⊂ ``region`` not covered by every neighbour.
+
+    All of ``domain`` if a neighbour is missing (``None``).
+    """
+    if neighbours is None or domain.is_empty:
+        return domain
     differ = [g for g in neighbours if not shapely.equals_exact(g, region, tolerance=TOL.same)]
     if not differ:
         return shapely.Polygon()
-    cover = region
+    cover = domain  # GEOS clips each operand to the other's envelope before overlaying
     for g in differ:
-        cover = polygonal(shapely.intersection(cover, g))
-    return polygonal(shapely.difference(region, cover))
+        cover = shapely.intersection(cover, g)
+    return polygonal(shapely.difference(domain, cover), valid=True)
 
 
-def solid_zones(layers: Sequence[LayerPlane], k: int, grounded: bool) -> list[BaseGeometry]:
-    """Per layer, the area to print 100 % solid.
+def solid_zones(layers: Sequence[LayerPlane], k: int, grounded: bool,
+                domains: Sequence[BaseGeometry] | None = None) -> list[BaseGeometry]:
+    """Per layer, the area to print 100 % solid (within its fill domain).
 
     Parameters
     ----------
@@ -64,18 +71,23 @@ def solid_zones(layers: Sequence[LayerPlane], k: int, grounded: bool) -> list[Ba
     grounded : bool
         True when nothing lies under the first layer (the root on the platform); a child's first
         layers sit on its parent and get no bottom skin.
+    domains : sequence of shapely geometry, optional
+        Per layer, where fill goes (:func:`slicer.toolpaths.fill_domain`); the whole region
+        when omitted.
 
     Returns
     -------
     list of shapely geometry
+        Zone i ⊂ ``domains[i]``.
     """
     out = []
     for i, layer in enumerate(layers):
-        if k <= 0:
+        domain = layer.region if domains is None else domains[i]
+        if k <= 0 or domain.is_empty:
             out.append(shapely.Polygon())
             continue
         below = _neighbours(layers, i, sorted({i - k, i - 1}), open_end=not grounded)
         above = _neighbours(layers, i, sorted({i + 1, i + k}), open_end=False)
         both = None if below is None or above is None else below + above
-        out.append(exposed(layer.region, both))
+        out.append(exposed(domain, layer.region, both))
     return out
