@@ -66,7 +66,7 @@ def write_config(tmp: Path) -> Path:
                    "log_level": "info"},
         "metrics": {"enabled": False},
         "serial": {"port": "sim://", "baud": 250000},
-        "sim": {"throttle": True},
+        "sim": {"throttle": False},  # as fast as the host streams: a watchable demo
         "process": {"layer_height": 0.3, "infill_density": 0.1},
     }
     path = tmp / "hostd.yaml"

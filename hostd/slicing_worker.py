@@ -52,17 +52,21 @@ def cache_key(stl_sha: str, profile: Mapping[str, Any]) -> str:
 
 
 def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str) -> dict[str, Any]:
-    """Runs in the worker process: slice ``stl_path`` with config ``values`` to ``out_path``."""
-    from hostd.config.loader import Config
+    """Runs in the worker process: slice ``stl_path`` with config ``values`` to ``out_path``.
 
-    try:
-        from slicer.pipeline import slice_model
-    except ImportError as exc:
-        raise SliceError(f"the slicing pipeline is not available: {exc}") from None
+    The G-code is written to a temporary name and renamed, so a crash never leaves a partial
+    file under the cache key.
+    """
+    from hostd.config import convert
+    from hostd.config.loader import Config
+    from slicer.gcode import write_gcode
+    from slicer.pipeline import slice_model
+
     cfg = Config(values, "<daemon>")
     tmp = f"{out_path}.{os.getpid()}.tmp"
     try:
-        result = slice_model(stl_path, cfg, tmp)
+        result = slice_model(stl_path, **convert.slice_inputs(cfg))
+        write_gcode(tmp, result.lines)
     except Exception as exc:  # the slicer's own errors, reported as one line to the operator
         Path(tmp).unlink(missing_ok=True)
         raise SliceError(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
@@ -71,14 +75,13 @@ def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str) -> dic
 
 
 def _summary(result: Any) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key in ("subparts", "layers", "transitions", "filament_mm", "time_s", "lines"):
-        value = getattr(result, key, None)
-        if isinstance(value, (int, float)):
-            out[key] = value
-        elif isinstance(value, (list, tuple)):
-            out[key] = len(value)
-    return out
+    """Plain figures of a SliceResult for the job record."""
+    est = result.estimate
+    return {"subparts": int(result.subparts), "layers": int(result.layers),
+            "transitions": len(result.transitions), "lines": len(result.lines),
+            "filament_mm": float(est["filament_mm"]), "time_s": float(est["time_s"]),
+            "replay": {k: v for k, v in result.replay.items()
+                       if isinstance(v, int | float)}}
 
 
 class SlicingWorker:

@@ -47,17 +47,11 @@ def _inputs(args: argparse.Namespace) -> dict[str, Any]:
                            f"{0.8 * cfg['machine.nozzle_diameter']:g}] mm")
         override["layer_height"] = h
     try:
-        head = convert.printhead(cfg)
+        return convert.slice_inputs(cfg, **override)
     except PrintheadError as exc:
         raise CliError(f"{cfg.source}: printhead.segments: {exc}") from None
-    try:
-        settings = convert.process_settings(cfg, **override)
     except (TypeError, ValueError) as exc:
         raise CliError(f"{cfg.source}: process: {exc}") from None
-    return {"settings": settings, "geometry": convert.machine_geometry(cfg), "head": head,
-            "decompose_settings": convert.decompose_settings(cfg),
-            "platform_radius": convert.platform_radius(cfg),
-            "build_volume": convert.build_volume(cfg)}
 
 
 def _slice(args: argparse.Namespace, inputs: dict[str, Any]) -> Any:
