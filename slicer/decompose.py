@@ -22,7 +22,7 @@ from scipy.spatial import cKDTree
 
 from kinematics.machine import MachineGeometry
 from slicer.buildorder import MERGE_ANGLE, Groups, group_regions, root_region
-from slicer.mesh_io import check_size, place_on_platform, repair
+from slicer.mesh_io import check_size, place_on_platform, repair, separate_bodies
 from slicer.partition import Partition, coarse_partition
 from slicer.planes import (
     SAMPLE_SPACING,
@@ -181,6 +181,9 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
         mesh, placed = place_on_platform(repair(mesh))
         placement = placed.matrix
     check_size(mesh, "<mesh>", build_volume, settings.nozzle_diameter)
+    bodies = separate_bodies(mesh)
+    if bodies:
+        raise DecompositionError(bodies)
     clock.lap("load")
     part = coarse_partition(mesh, settings.parts or None, settings.seed)
     clock.lap("partition")

@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 #: Tolerances of this module (mm, or cosines of angles).
 PLANE_TOL = 1e-3  # distance of a face from its base plane, mm
@@ -212,3 +214,45 @@ def check_size(mesh: trimesh.Trimesh, name: str, build_volume: np.ndarray | None
             dims = " × ".join(f"{x:.1f}" for x in ext)
             room = " × ".join(f"{x:.1f}" for x in limit)
             raise MeshError(f"{name}: too big: {dims} mm exceeds the build volume {room} mm")
+
+
+
+def _face_volumes(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Signed volume of the tetrahedron from the origin to every face, (n,) float."""
+    tri = mesh.triangles
+    return np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])) / 6.0
+
+
+def body_labels(mesh: trimesh.Trimesh) -> np.ndarray:
+    """Edge-connected body of every face, (n,) int, 0 = the body with the largest volume.
+
+    Bodies touching only at a vertex count as separate (nothing prints across a point).
+    """
+    n = len(mesh.faces)
+    pairs = mesh.face_adjacency
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    count, comp = connected_components(graph, directed=False)
+    if count == 1:
+        return comp
+    volume = np.bincount(comp, weights=_face_volumes(mesh), minlength=count)
+    rank = np.empty(count, dtype=np.int64)
+    rank[np.argsort(-volume, kind="stable")] = np.arange(count)
+    return rank[comp]
+
+
+def separate_bodies(mesh: trimesh.Trimesh) -> str | None:
+    """``None`` for one connected solid, else a phrase naming the smallest body and where.
+
+    Example: ``"the part is 2 separate bodies (the smallest, 1.24 mm³ near [9.6, 0.0, 23.6]
+    mm, is not joined to the rest); one connected solid is needed"``.
+    """
+    labels = body_labels(mesh)
+    count = int(labels.max()) + 1
+    if count == 1:
+        return None
+    small = labels == count - 1
+    volume = abs(float(_face_volumes(mesh)[small].sum()))
+    centre = np.round(mesh.triangles_center[small].mean(axis=0), 1) + 0.0  # no "-0.0"
+    where = ", ".join(f"{x:.1f}" for x in centre)
+    return (f"the part is {count} separate bodies (the smallest, {volume:.3g} mm³ near "
+            f"[{where}] mm, is not joined to the rest); one connected solid is needed")

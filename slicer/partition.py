@@ -152,8 +152,12 @@ def merge_small(mesh: trimesh.Trimesh, labels: np.ndarray,
                 min_share: float = MIN_REGION_SHARE) -> np.ndarray:
     """Merge regions below ``min_share`` of the area into their longest-boundary neighbour.
 
-    Each pass merges every small region at once (smallest first, into a neighbour that is not
-    itself being merged away when possible); passes repeat until none is left.
+    Each pass merges every small region at once, into the neighbour it shares the longest
+    boundary with (kept neighbours preferred). A small region may only merge into a larger one
+    (area, then index, breaks ties), so the merge targets form no cycle and every pass makes
+    progress: the smallest region always has somewhere to go. Regions stay edge-connected,
+    since a region only ever joins an edge neighbour. A region with no neighbour at all (a
+    separate body) is left as it is. Passes repeat until no small region is left.
     """
     labels = labels.copy()
     for _ in range(64):
@@ -162,19 +166,33 @@ def merge_small(mesh: trimesh.Trimesh, labels: np.ndarray,
         small = areas < min_share * mesh.area
         if not small.any() or k == 1:
             break
-        shared = boundary_lengths(mesh, labels)
-        np.fill_diagonal(shared, 0.0)
-        target = np.arange(k)
-        big_first = np.where(small[None, :], 0.5, 1.0) * shared  # prefer kept neighbours
-        for r in np.flatnonzero(small)[np.argsort(areas[small])]:
-            if shared[r].max() > 0:
-                target[r] = int(np.argmax(big_first[r]))
-        for _ in range(k):  # follow chains r -> t -> ...
-            target = target[target]
+        target = _merge_targets(boundary_lengths(mesh, labels), areas, small)
         if np.array_equal(target, np.arange(k)):
             break
         labels = _compact(target[labels])
     return labels
+
+
+def _merge_targets(shared: np.ndarray, areas: np.ndarray, small: np.ndarray) -> np.ndarray:
+    """Final region every region merges into this pass, (k,) int (itself when kept).
+
+    Parameters
+    ----------
+    shared : (k, k) float
+        Boundary lengths between regions.
+    areas : (k,) float
+    small : (k,) bool
+        Regions to merge away.
+    """
+    k = len(areas)
+    rank = np.empty(k, dtype=np.int64)
+    rank[np.lexsort((np.arange(k), areas))] = np.arange(k)
+    allowed = (shared > 0) & (rank[None, :] > rank[:, None])  # only into larger regions
+    score = np.where(allowed, np.where(small[None, :], 0.5, 1.0) * shared, 0.0)
+    target = np.where(small & allowed.any(axis=1), np.argmax(score, axis=1), np.arange(k))
+    for _ in range(int(np.ceil(np.log2(max(k, 2)))) + 1):  # follow chains r -> t -> ...
+        target = target[target]
+    return target
 
 
 def coarse_partition(mesh: trimesh.Trimesh, k: int | None, seed: int) -> Partition:

@@ -109,7 +109,50 @@ def branched_pipe(branches: Sequence[tuple[float, float, float]] = ((25.0, 0.0, 
         solids.append(_rod(start, d, branch_length, branch_radius, segments))
         holes.append(_rod(start, d, branch_length + 1.0, branch_radius - wall, segments))
     solid = m3.Manifold.batch_boolean(solids, m3.OpType.Add)
-    return to_trimesh(solid - m3.Manifold.batch_boolean(holes, m3.OpType.Add))
+    return to_trimesh(largest_body(solid - m3.Manifold.batch_boolean(holes, m3.OpType.Add)))
+
+
+def largest_body(solid: m3.Manifold) -> m3.Manifold:
+    """The largest-volume connected body of ``solid``.
+
+    A short branch whose end lies in the main tube's wall (or that leaves through its rim)
+    has its bore cut a sliver off the rim; the sample is the part those slivers fell off.
+    """
+    bodies = solid.decompose()
+    if len(bodies) <= 1:
+        return solid
+    return max(bodies, key=lambda b: b.volume())
+
+
+#: Ranges of :func:`pipe_variant` (mm and degrees).
+VARIANT_HEIGHT = (20.0, 60.0)
+VARIANT_BRANCH_Z = (8.0, 40.0)  # and at most VARIANT_TOP_CLEARANCE below the top
+VARIANT_TOP_CLEARANCE = 4.0
+VARIANT_LENGTH = (10.0, 32.0)
+VARIANT_ELEVATIONS = (30.0, 45.0, 60.0)
+
+
+def pipe_variant(index: int) -> dict[str, object]:
+    """Keyword arguments of :func:`branched_pipe` for the seeded robustness sweep.
+
+    Variant ``index`` draws (from ``numpy.random.default_rng(index)``) a tube height in
+    :data:`VARIANT_HEIGHT`, one or two branches leaving at heights in :data:`VARIANT_BRANCH_Z`
+    (and at least :data:`VARIANT_TOP_CLEARANCE` below the top), any azimuth, an elevation of
+    :data:`VARIANT_ELEVATIONS`, and one branch length in :data:`VARIANT_LENGTH`.
+
+    Examples
+    --------
+    >>> mesh = branched_pipe(**pipe_variant(0))
+    """
+    rng = np.random.default_rng(index)
+    height = float(np.round(rng.uniform(*VARIANT_HEIGHT), 1))
+    z_hi = min(VARIANT_BRANCH_Z[1], height - VARIANT_TOP_CLEARANCE)
+    count = int(rng.integers(1, 3))
+    branches = tuple((float(np.round(rng.uniform(VARIANT_BRANCH_Z[0], z_hi), 1)),
+                      float(np.round(rng.uniform(0.0, 360.0))),
+                      float(rng.choice(VARIANT_ELEVATIONS))) for _ in range(count))
+    length = float(np.round(rng.uniform(*VARIANT_LENGTH), 1))
+    return {"branches": branches, "height": height, "branch_length": length}
 
 
 def pipe2(segments: int = SEGMENTS) -> trimesh.Trimesh:
@@ -146,7 +189,7 @@ def curved_pipe(bend_radius: float = 30.0, bend_deg: float = 60.0, z: float = 25
                         [-1.0, 0.0, 0.0, z + bend_radius]])
         out.append(arc.transform(mat))
     solid = m3.Manifold.batch_boolean(solids, m3.OpType.Add)
-    return to_trimesh(solid - m3.Manifold.batch_boolean(holes, m3.OpType.Add))
+    return to_trimesh(largest_body(solid - m3.Manifold.batch_boolean(holes, m3.OpType.Add)))
 
 
 def prism_volume(radius: float, height: float, segments: int = SEGMENTS) -> float:

@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from decompose_checks import check_decomposition, independent_check, is_clean_failure
 from scipy.spatial import cKDTree
 
 from hostd.cli.main import main as hostctl
@@ -77,44 +78,10 @@ def test_every_branch_gets_its_own_sub_part(results, name):
     assert len(found) == len(ends)
 
 
-def _independent_check(dec, head, a_limits):
-    """Constraints I and II by brute force: head placed at sampled tips of the base."""
-    rng = np.random.default_rng(0)
-    for rank, i in enumerate(dec.order):
-        s = dec.subparts[i]
-        if s.parent is None:
-            assert np.allclose(s.build_direction, [0.0, 0.0, 1.0])
-            continue
-        p, n = s.base_plane.point, s.base_plane.normal
-        assert np.linalg.norm(n) == pytest.approx(1.0)
-        # II: child on the positive side; direction reachable (tilt within A limits)
-        assert ((s.mesh.vertices - p) @ n).min() > -1e-4
-        tilt = np.degrees(np.arccos(np.clip(n[2], -1, 1)))
-        assert tilt <= max(abs(a_limits[0]), abs(a_limits[1])) + 1e-9
-        assert np.allclose(s.build_direction, n)
-        # the base: the sub-part's faces lying on the plane and facing -n
-        on = (np.abs((s.mesh.triangles_center - p) @ n) < 1e-5) & (s.mesh.face_normals @ n
-                                                                  < -0.999)
-        assert s.mesh.area_faces[on].sum() == pytest.approx(s.base_area, rel=0.02)
-        base = trimesh.Trimesh(s.mesh.vertices, s.mesh.faces[on])
-        tips = np.concatenate([trimesh.sample.sample_surface(base, 300, seed=1)[0],
-                               base.vertices[np.unique(base.faces)]])
-        tips = tips[rng.permutation(len(tips))[:400]]
-        # I: platform clear at every tip; nothing printed earlier inside the head
-        assert min(head.lowest_point(t, n) for t in tips) >= -1e-6
-        earlier = [dec.subparts[j].mesh for j in dec.order[:rank]]
-        obstacles = np.concatenate([np.concatenate(
-            [trimesh.sample.sample_surface(m, 20000, seed=2)[0], m.vertices]) for m in earlier])
-        # the parent's face glued to this base lies on the plane (h = 0): not an obstacle
-        obstacles = obstacles[np.abs((obstacles - p) @ n) > 1e-6]
-        for t in tips:
-            assert not head.contains(obstacles, t, n).any()
-
-
 @pytest.mark.parametrize("name", ["pipe2", "pipe3", "branch30", "curved"])
 def test_planes_satisfy_constraints_independently(results, name):
     _, dec = results[name]
-    _independent_check(dec, HEAD, MACHINE.a_limits)
+    independent_check(dec, HEAD, MACHINE.a_limits)
 
 
 def test_same_seed_same_result(results):
@@ -134,7 +101,7 @@ def test_other_seeds_and_k_still_give_valid_decompositions(seed):
     dec = decompose(mesh, DecomposeSettings(seed=seed, parts=8), MACHINE, HEAD)
     assert len(dec.subparts) >= 2
     assert sum(s.volume for s in dec.subparts) == pytest.approx(mesh.volume, rel=0.005)
-    _independent_check(dec, HEAD, MACHINE.a_limits)
+    independent_check(dec, HEAD, MACHINE.a_limits)
 
 
 @pytest.mark.parametrize("seed", [1, 2])
@@ -145,7 +112,7 @@ def test_curved_branch_decomposes_for_other_seeds(seed):
     dec = decompose(mesh, DecomposeSettings(seed=seed), MACHINE, HEAD)
     assert len(dec.subparts) >= 2
     assert sum(s.volume for s in dec.subparts) == pytest.approx(mesh.volume, rel=0.005)
-    _independent_check(dec, HEAD, MACHINE.a_limits)
+    independent_check(dec, HEAD, MACHINE.a_limits)
 
 
 def test_steep_branch_prints_with_the_tube_or_separately_but_validly():
@@ -154,7 +121,7 @@ def test_steep_branch_prints_with_the_tube_or_separately_but_validly():
     dec = decompose(mesh, DecomposeSettings(seed=3), MACHINE, HEAD)
     assert sum(s.volume for s in dec.subparts) == pytest.approx(mesh.volume, rel=0.005)
     assert all(s.mesh.is_watertight for s in dec.subparts)
-    _independent_check(dec, HEAD, MACHINE.a_limits)
+    independent_check(dec, HEAD, MACHINE.a_limits)
 
 
 def test_unreachable_branch_fails_naming_the_boundary():
@@ -200,3 +167,57 @@ def test_cli_out_of_range_root_is_one_line_exit_2_with_the_range(tmp_path, capsy
     assert err.count("\n") == 1 and f"--root {root}" in err
     if root == "999":
         assert "valid regions are 0.." in err
+
+
+SMALL_PIPE = {"branches": ((12.0, 0.0, 45.0),), "height": 24.0, "branch_length": 14.0}
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_coarse_regions_are_edge_connected_large_and_reach_the_root(seed):
+    # the small pipe's bore used to sever a sliver of the rim: a second body, whose regions
+    # could not reach the root ("regions are not all connected")
+    from slicer.buildorder import bfs_tree, root_region
+    from slicer.partition import MIN_REGION_SHARE, boundary_lengths, coarse_partition
+
+    mesh = samples.branched_pipe(**SMALL_PIPE)
+    part = coarse_partition(mesh, None, seed)
+    m, labels = part.mesh, part.labels
+    pairs = m.face_adjacency
+    same = labels[pairs[:, 0]] == labels[pairs[:, 1]]
+    inside = trimesh.graph.connected_component_labels(pairs[same], node_count=len(m.faces))
+    for r in range(part.count):
+        assert len(np.unique(inside[labels == r])) == 1  # one edge-connected piece
+    assert part.areas().min() >= MIN_REGION_SHARE * m.area
+    order, _ = bfs_tree(boundary_lengths(m, labels), root_region(part))
+    assert len(order) == part.count
+
+
+def test_several_bodies_are_refused_naming_the_smallest():
+    import manifold3d as m3
+
+    solid = m3.Manifold.cylinder(20, 10, 10, 48) + m3.Manifold.cylinder(2, 3, 3, 48).translate(
+        (30.0, 0.0, 5.0))
+    with pytest.raises(DecompositionError) as exc:
+        decompose(samples.to_trimesh(solid), DecomposeSettings(), MACHINE, HEAD)
+    msg = str(exc.value)
+    assert "2 separate bodies" in msg and "[30.0, 0.0, 6.0]" in msg and "\n" not in msg
+
+
+SWEEP_SUBSET = [(SMALL_PIPE, 0), (SMALL_PIPE, 2), (samples.pipe_variant(0), 0),
+                (samples.pipe_variant(2), 1), (samples.pipe_variant(3), 0),
+                (samples.pipe_variant(11), 2), (samples.pipe_variant(16), 0),
+                (samples.pipe_variant(25), 2), (samples.pipe_variant(34), 0),
+                (samples.pipe_variant(36), 1)]
+
+
+@pytest.mark.parametrize(("params", "seed"), SWEEP_SUBSET)
+def test_sweep_variants_decompose_validly_or_fail_naming_the_boundary(params, seed):
+    # a representative subset of bench/decompose_sweep.py (one or two branches, 30-60°,
+    # lengths 12-29 mm, tubes 22-46 mm tall)
+    mesh = samples.branched_pipe(**params)
+    try:
+        dec = decompose(mesh, DecomposeSettings(seed=seed), MACHINE, HEAD)
+    except DecompositionError as exc:
+        assert is_clean_failure(str(exc)), str(exc)
+        return
+    check_decomposition(mesh, dec, HEAD, MACHINE.a_limits)
