@@ -50,6 +50,7 @@ KEEP_SHARE = 0.3  # the child must keep this share of its coarse region on the p
 PLATFORM_TOL = 1e-6  # mm
 PROXY_FACES = 12_000  # the plane search runs on a simplified copy of pieces with more faces
 PROXY_TOLERANCES = (0.01, 0.05, 0.2)  # mm, tried in turn; all far below SAMPLE_SPACING
+STALL_WINDOW = 200  # search steps without a lower penalty before giving up on a start plane
 
 
 class PlaneSearchError(ValueError):
@@ -261,7 +262,8 @@ class SearchSettings:
     offset_max: float = 2.0
     angle_max: float = 5.0
     area_growth_max: float = 0.15
-    max_iterations: int = 2000
+    max_iterations: int = 2000  # hard bound per start plane
+    stall_window: int = STALL_WINDOW  # stop after this many steps without progress
 
 
 def perturb(plane: Plane, rng: np.random.Generator, settings: SearchSettings,
@@ -296,6 +298,14 @@ def search_plane(ctx: PieceContext, start: Plane, settings: SearchSettings,
                  rng: np.random.Generator) -> tuple[Check, int]:
     """Local dynamic search from ``start`` until constraints I and II hold.
 
+    The search stops at the first feasible plane, after ``settings.max_iterations`` steps,
+    or when ``settings.stall_window`` steps in a row brought no progress on the failing
+    constraint: progress is a strictly lower :attr:`Check.penalty` (an invalid plane becoming
+    valid, an unreachable direction becoming reachable, the platform clearing, fewer samples
+    in the head). Feasible planes of the sample pipes are found within ~25 steps, each
+    improvement within ~5 of the last, so a window of 200 only cuts hopeless searches short
+    (an unreachable branch: 400 steps instead of 4000).
+
     Returns
     -------
     check : Check
@@ -307,7 +317,10 @@ def search_plane(ctx: PieceContext, start: Plane, settings: SearchSettings,
     if best.ok:
         return best, 0
     area0 = best.area if best.valid else np.inf
+    progress = 0  # last step that lowered the penalty
     for it in range(1, settings.max_iterations + 1):
+        if it - progress > settings.stall_window:
+            return best, it - 1
         cand = evaluate(ctx, perturb(best.plane, rng, settings, best))
         if not cand.valid and not _pushed_on(best, cand):
             continue
@@ -316,6 +329,8 @@ def search_plane(ctx: PieceContext, start: Plane, settings: SearchSettings,
         if cand.penalty <= best.penalty:
             if not best.valid and cand.valid:
                 area0 = cand.area
+            if cand.penalty < best.penalty:
+                progress = it
             best = cand
             if best.ok:
                 return best, it
