@@ -45,6 +45,8 @@ class Observed:
     def _ok(self, ok: Ok) -> None:
         if ok.temperatures is not None:
             self.temperatures = ok.temperatures
+        if ok.position is not None:
+            self.position = ok.position
         if ok.planner_free is not None or ok.buffer_free is not None:
             self.advanced_ok = True
             self.planner_free = ok.planner_free

@@ -57,12 +57,15 @@ class Ok:
         ``B``: free command-queue slots.
     temperatures
         A temperature report on the same line (``ok T:…``), i.e. the answer to an M105.
+    position
+        A position on the same line (``ok X:… Y:…``, as some emulators answer M114).
     """
 
     line: int | None = None
     planner_free: int | None = None
     buffer_free: int | None = None
     temperatures: Temperatures | None = None
+    position: Position | None = None
 
 
 @dataclass(frozen=True)
@@ -178,6 +181,9 @@ def _ok(text: str, low: str) -> Ok | None:
     if low != "ok" and not low.startswith("ok ") and not low.startswith("ok:"):
         return None
     rest = text[3:].strip()
+    position = _position(rest, rest.lower())
+    if position is not None:
+        return Ok(position=position)
     temps = parse_temperatures(rest) if _HEATER.search(rest) and "T" in rest else None
     found = {k: int(v) for k, v in _OK_FIELD.findall(rest)} if temps is None else {}
     return Ok(found.get("N"), found.get("P"), found.get("B"), temps)

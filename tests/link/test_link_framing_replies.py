@@ -102,6 +102,12 @@ def test_m114_with_rotary_axes_ignores_the_step_counts() -> None:
     assert reply == Position({"X": 1.0, "Y": 2.0, "Z": 3.0, "A": 10.0, "C": -45.0, "E": 0.5})
 
 
+def test_position_on_the_ok_line() -> None:
+    reply = parse_reply("ok X:1.0 Y:2.0 Z:3.0 E:0.0 Count: A:0 B:0 C:0")
+    assert isinstance(reply, Ok) and reply.position == Position(
+        {"X": 1.0, "Y": 2.0, "Z": 3.0, "E": 0.0})
+
+
 def test_m115_firmware_line() -> None:
     reply = parse_reply("FIRMWARE_NAME:Marlin 2.1.2 (Github) SOURCE_CODE_URL:github.com/x "
                         "PROTOCOL_VERSION:1.0 MACHINE_TYPE:5axis EXTRUDER_COUNT:1 UUID:abc")

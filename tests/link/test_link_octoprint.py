@@ -1,0 +1,128 @@
+"""The link, unchanged, against another project's Marlin emulator: OctoPrint's virtual printer.
+
+Skipped when OctoPrint is not installed (it is a large web application and not a dependency of
+hostd). To run it: install ``octoprint`` in a separate virtualenv together with hostd's test
+requirements and run this file with ``PYTHONPATH`` pointing at the checkout.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import tempfile
+import threading
+from typing import Any
+
+import pytest
+
+from hostd.link import LinkSettings, SerialLink
+from hostd.link.replies import Position, Temperatures
+from hostd.link.transport import Connection
+from hostd.sim.settings import SimSettings
+
+virtual = pytest.importorskip(
+    "octoprint.plugins.virtual_printer.virtual",
+    reason="OctoPrint is not installed (optional: pip install octoprint in a separate venv)")
+plugin = pytest.importorskip("octoprint.plugins.virtual_printer")
+
+
+class _Settings:
+    """The slice of OctoPrint's plugin settings API the virtual printer reads."""
+
+    def __init__(self, overrides: dict[str, Any]) -> None:
+        self.values = plugin.VirtualPrinterPlugin().get_settings_defaults()
+        self.values.update(overrides)
+
+    def get(self, path: list[str], merged: bool = False) -> Any:
+        value: Any = self.values
+        for key in path:
+            value = value[key]
+        return value
+
+    def get_int(self, path: list[str]) -> int:
+        return int(self.get(path))
+
+    def get_float(self, path: list[str]) -> float:
+        return float(self.get(path))
+
+    def get_boolean(self, path: list[str]) -> bool:
+        return bool(self.get(path))
+
+    def global_get_basefolder(self, name: str) -> str:
+        return tempfile.mkdtemp(prefix=f"octo-{name}-")
+
+
+class _NoPlugins:
+    def get_hooks(self, name: str) -> dict[str, Any]:
+        return {}
+
+
+class _Profiles:
+    def get_current_or_default(self) -> dict[str, Any]:
+        return {"volume": {"width": 500, "depth": 500, "height": 700}}
+
+
+def _pump_writes(sock: socket.socket, printer: Any) -> None:
+    buf = b""
+    while True:
+        data = sock.recv(4096)
+        if not data:
+            return
+        buf += data
+        *lines, buf = buf.split(b"\n")
+        for line in lines:
+            printer.write(line + b"\n")
+
+
+def _pump_reads(sock: socket.socket, printer: Any, stop: threading.Event) -> None:
+    while not stop.is_set():
+        line = printer.readline()  # without its newline, unlike a real port
+        if line:
+            try:
+                sock.sendall(line.rstrip(b"\r\n") + b"\n")
+            except OSError:
+                return
+
+
+def opener_for(overrides: dict[str, Any]) -> Any:
+    async def open_virtual(settings: LinkSettings, sim: SimSettings | None) -> Connection:
+        host, board = socket.socketpair()
+        printer = virtual.VirtualPrinter(_Settings(overrides), _Profiles(),
+                                         tempfile.mkdtemp(), read_timeout=0.1)
+        stop = threading.Event()
+        threading.Thread(target=_pump_writes, args=(board, printer), daemon=True).start()
+        threading.Thread(target=_pump_reads, args=(board, printer, stop), daemon=True).start()
+        reader, writer = await asyncio.open_connection(sock=host)
+        return Connection(reader, writer)
+    return open_virtual
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("overrides", [
+    {},
+    {"resend_ratio": 5, "sendBusy": True, "okFormatString": "ok"},
+    {"resend_ratio": 3, "rxBuffer": 127, "commandBuffer": 4},
+], ids=["defaults", "resends-and-busy", "resends-small-buffers"])
+async def test_stream_against_octoprint_virtual_printer(
+        overrides: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(virtual, "plugin_manager", _NoPlugins)
+    # The virtual printer emulates a 64-byte receive buffer unless told otherwise.
+    rx = int(overrides.get("rxBuffer", 64))
+    link = SerialLink(LinkSettings(ok_timeout=2.0, nudges=3, handshake_timeout=2.0,
+                                   rx_buffer_bytes=rx),
+                      opener=opener_for({"simulateReset": False, **overrides}))
+    lines = ["G90", *(f"G1 X{i % 50} Y{i % 30} F6000" for i in range(400)), "M400"]
+    async with asyncio.timeout(120):
+        await link.connect()
+        acked = [i async for i in link.stream(lines)]
+        pos = await link.query("M114")
+        temps = await link.query("M105")
+        status = link.status()
+        await link.close()
+    assert acked == list(range(len(lines)))
+    assert isinstance(pos, Position) and pos.axes["X"] == pytest.approx(399 % 50)
+    assert pos.axes["Y"] == pytest.approx(399 % 30)
+    assert isinstance(temps, Temperatures) and "T" in temps.heaters
+    assert status["firmware_name"]
+    if overrides.get("resend_ratio"):
+        assert status["lines_resent"] > 0
