@@ -2,9 +2,11 @@
 
 For each baud rate, receive buffer and flow-control mode, ``hostd-sim --pty --throttle`` runs
 in its own process (wire limited to baud/10 bytes/s both ways, planner on a simulated clock so
-the wire is the bottleneck) and this process streams a five-axis job through
-``SerialLink``. Printed: lines/s, wire bytes/s, the share of the wire limit, resent lines and
-host CPU seconds per 1000 lines.
+the wire is the bottleneck) and this process streams a job through ``SerialLink``: a real
+five-axis slice of the sample pipe (``sliced``), synthetic planar lines (~30 bytes) and
+synthetic five-axis lines carrying every axis (~65 bytes, a worst case). Printed:
+lines/s, wire bytes/s, the share of the wire limit, resent lines and host CPU seconds per
+1000 lines.
 
 Run: ``.venv/bin/python bench/stream.py [--lines N]``.
 """
@@ -78,10 +80,23 @@ async def run_case(baud: int, buffer: int, mode: str, lines: list[str]) -> dict[
             "acked": count}
 
 
+def sliced_job(n: int) -> list[str]:
+    """The first ``n`` commands of a real five-axis slice of the sample two-branched pipe."""
+    from hostd.config import convert, defaults
+    from hostd.link import strip_gcode
+    from slicer.pipeline import slice_model
+    from slicer.samples import pipe2
+
+    result = slice_model(pipe2(), check=False, **convert.slice_inputs(defaults()))
+    cmds = [c for c in map(strip_gcode, result.lines) if c]
+    return cmds[len(cmds) // 3:len(cmds) // 3 + n]  # mid-print: layers, not the start script
+
+
 async def main(n: int) -> None:
     print(f"{'job':>9} {'baud':>7} {'buffer':>6} {'mode':>10} {'lines/s':>8} {'bytes/s':>8} "
           f"{'wire %':>6} {'resent':>6} {'cpu s/1000':>10}")
-    for job, make in (("planar", planar_job), ("five-axis", five_axis_job)):
+    for job, make in (("sliced", sliced_job), ("planar", planar_job),
+                      ("five-axis", five_axis_job)):
         await run_job(job, make(n))
 
 
