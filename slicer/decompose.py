@@ -325,8 +325,10 @@ def _verify(subparts: list[Subpart], machine: MachineGeometry, head: Printhead) 
             obstacles = _samples(printed, 0)
             problem = verify_base(s.mesh, s.base_plane, obstacles, head, machine.a_limits)
             if problem:
-                raise DecompositionError(f"sub-part {s.index} on sub-part {s.parent}: "
-                                         f"{problem}")
+                where = "[" + ", ".join(f"{x:.1f}" for x in s.base_plane.point) + "]"
+                raise DecompositionError(
+                    f"boundary between sub-part {s.parent} and sub-part {s.index} near {where}"
+                    f" mm: the final check of the cut sub-parts fails: {problem}")
         printed.append(s.mesh)
 
 
