@@ -171,6 +171,8 @@ def polygonal(geom: BaseGeometry, valid: bool = False) -> BaseGeometry:
     """
     if not valid and not shapely.is_valid(geom):
         geom = shapely.make_valid(geom)
+    if shapely.get_type_id(geom) == _POLYGON:  # the common case, without array round trips
+        return geom if shapely.area(geom) > TOL.min_area else shapely.Polygon()
     parts = shapely.get_parts(geom)
     kind = shapely.get_type_id(parts)
     while ((kind == _MULTI) | (kind == _COLLECTION)).any():

@@ -21,6 +21,7 @@ import manifold3d as m3
 import numpy as np
 import shapely
 import trimesh
+from scipy.spatial import cKDTree
 from shapely.geometry.base import BaseGeometry
 
 from kinematics.errors import UnreachableDirection
@@ -49,6 +50,7 @@ TIP_SPACING = 2.0  # mm between nozzle positions checked per layer
 UP = np.array([0.0, 0.0, 1.0])
 
 _CURVES: dict[tuple, SkeletonCurve] = {}  # skeleton cache: (mesh hash, start, normal) → curve
+_SOLIDS: dict[int, tuple[trimesh.Trimesh, m3.Manifold]] = {}  # id(mesh) → (mesh, solid)
 
 
 @dataclass
@@ -62,11 +64,18 @@ class _Machine:
     pose: tuple[float, float] = (0.0, 0.0)
     fixed: bool = False  # planar control: A = C = 0 always
     parts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # earlier sub-parts
-    own: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # this part's outlines
+    outlines: list[np.ndarray] = field(default_factory=list)  # this part's printed outlines
+
+    @property
+    def own(self) -> np.ndarray:
+        """Outline samples of this sub-part's printed layers, (n, 3) float."""
+        if len(self.outlines) > 1:
+            self.outlines[:] = [np.vstack(self.outlines)]
+        return self.outlines[0] if self.outlines else np.zeros((0, 3))
 
     def printed(self, outline: np.ndarray) -> None:
         """Add a printed layer's outline samples to the obstacles."""
-        self.own = np.vstack([self.own, outline])
+        self.outlines.append(outline)
 
     def accept(self, origin: np.ndarray, frame: np.ndarray, region: BaseGeometry) -> str | None:
         """None if the plane can be printed, else the name of what is in the way."""
@@ -80,33 +89,53 @@ class _Machine:
                 return "the A/C limits"
         if self.head is None:
             return None
-        tips = _outline(region, origin, frame, TIP_SPACING)
+        tips = _outline_xy(region, TIP_SPACING)
+        if not len(tips):
+            return None
         drop = self.head.lowest_point(origin, n) - origin[2]
-        if len(tips) and tips[:, 2].min() + drop < -1e-9:
+        if from_plane(tips, origin, frame)[:, 2].min() + drop < -1e-9:
             return "platform"
-        reach = self.head.reach + _radius(tips, origin)
         for obstacles in (self.parts, self.own):
-            above = obstacles[obstacles @ n > origin @ n + 1e-9]
-            near = above[np.einsum("ij,ij->i", above - origin, above - origin) < reach**2]
-            if len(near) and self.head.collisions(near, tips, n).any():
+            if _head_hits(self.head, obstacles, origin, frame, tips):
                 return "printed part"
         return None
 
 
-def _radius(points: np.ndarray, origin: np.ndarray) -> float:
-    return float(np.linalg.norm(points - origin, axis=1).max()) if len(points) else 0.0
+def _head_hits(head: Printhead, obstacles: np.ndarray, origin: np.ndarray, frame: np.ndarray,
+               tips: np.ndarray) -> bool:
+    """Whether the head, standing on any of the ``tips`` (k, 2) of the plane (origin, frame)
+    along its normal, holds one of the ``obstacles`` (n, 3).
+
+    All tips lie in one plane, so a point at height h above it is inside the head at some tip
+    exactly when its in-plane distance to the nearest tip is below the head's radius at h:
+    one nearest-neighbour query per point on a tree of the few tips (this is
+    ``head.collisions(obstacles, tips, n).any()`` without the all-pairs search).
+    """
+    rel = obstacles - origin
+    h = rel @ frame[2]
+    keep = (h > 1e-9) & (h <= head.height)
+    if not keep.any():
+        return False
+    q = rel[keep] @ frame[:2].T
+    radius = head.radius_at(h[keep])
+    d, _ = cKDTree(tips).query(q, distance_upper_bound=head.max_radius)
+    return bool((d < radius).any())
+
+
+def _outline_xy(region: BaseGeometry, spacing: float) -> np.ndarray:
+    """Boundary samples of a 2D region, about one per ``spacing`` mm, (n, 2) float."""
+    if region.is_empty:
+        return np.zeros((0, 2))
+    xy = shapely.get_coordinates(shapely.segmentize(region.boundary, spacing))
+    step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    keep = np.r_[0, np.flatnonzero(np.diff(np.floor(np.cumsum(step) / spacing))) + 1]
+    return xy[keep]
 
 
 def _outline(region: BaseGeometry, origin: np.ndarray, frame: np.ndarray,
              spacing: float) -> np.ndarray:
     """Boundary samples of a 2D region lifted to its plane, (n, 3) float."""
-    if region.is_empty:
-        return np.zeros((0, 3))
-    xy = shapely.get_coordinates(shapely.segmentize(region.boundary, spacing))
-    step = np.linalg.norm(np.diff(xy, axis=0), axis=1)
-    keep = np.r_[0, np.flatnonzero(np.diff(np.floor(np.cumsum(step) / spacing))) + 1]
-    xy = xy[keep]  # about one sample per ``spacing`` along the outline
-    return from_plane(xy, origin, frame)
+    return from_plane(_outline_xy(region, spacing), origin, frame)
 
 
 def _surface_samples(mesh: trimesh.Trimesh, spacing: float) -> np.ndarray:
@@ -114,6 +143,17 @@ def _surface_samples(mesh: trimesh.Trimesh, spacing: float) -> np.ndarray:
     count = int(mesh.area / spacing**2) + 1
     pts, _ = trimesh.sample.sample_surface(mesh, count, seed=0)
     return np.vstack([mesh.vertices, pts])
+
+
+def _solid(mesh: trimesh.Trimesh) -> m3.Manifold:
+    """The slicing solid of a sub-part mesh, built once per plan (a parent asks for its
+    children's base sections before the children are sliced)."""
+    key = id(mesh)
+    if key not in _SOLIDS or _SOLIDS[key][0] is not mesh:
+        if len(_SOLIDS) > 16:
+            _SOLIDS.clear()
+        _SOLIDS[key] = (mesh, slicing_solid(mesh))
+    return _SOLIDS[key][1]
 
 
 def _curve(mesh: trimesh.Trimesh, start: np.ndarray, normal: np.ndarray) -> SkeletonCurve:
@@ -180,7 +220,7 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
     ``base`` is (point, normal, upright): an upright part (the root, the planar control) is
     sliced along the vertical through its base centre; others along their skeleton curve.
     """
-    solid = slicing_solid(mesh)
+    solid = _solid(mesh)
     centre, _, _ = _base_centre(solid, base[0], base[1], settings.layer_height)
     timer.lap("sections")
     if base[2]:
@@ -189,7 +229,7 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
         curve = _curve(mesh, centre, base[1])
     timer.lap("skeleton")
     poses: list[tuple[float, float]] = []
-    machine.subpart, machine.own = index, np.zeros((0, 3))
+    machine.subpart, machine.outlines = index, []
 
     def accept(origin: np.ndarray, frame: np.ndarray, region: BaseGeometry) -> str | None:
         return machine.accept(origin, frame, region)
@@ -206,7 +246,7 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
 
 def _child_base(index: int, mesh: trimesh.Trimesh, point: np.ndarray, normal: np.ndarray,
                 t: float) -> ChildBase:
-    _, sec, frame = _base_centre(slicing_solid(mesh), point, normal, t)
+    _, sec, frame = _base_centre(_solid(mesh), point, normal, t)
     return ChildBase(index, np.asarray(point, dtype=float), frame, sec)
 
 

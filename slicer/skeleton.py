@@ -25,7 +25,7 @@ the (always slightly short) MCF skeleton to the end of the part.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import manifold3d as m3
 import numpy as np
@@ -57,12 +57,16 @@ class SkeletonCurve:
         Dense monotone table u ↔ s.
     source : str
         "mcf", "axis" (straight chain) or "pca" (fallback).
+    line : ((3,) float, (3,) float) or None
+        Start and unit direction when the curve is a straight segment: p(s) and τ(s) are then
+        evaluated directly (the root's ~300 layers each ask for both several times).
     """
 
     tck: tuple
     u_table: np.ndarray
     s_table: np.ndarray
     source: str
+    line: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def length(self) -> float:
@@ -80,6 +84,8 @@ class SkeletonCurve:
     def point(self, s: ArrayLike) -> np.ndarray:
         """p(s), (n, 3) float; linear continuation along the end tangents outside [0, L]."""
         s = np.atleast_1d(np.asarray(s, dtype=float))
+        if self.line is not None:
+            return self.line[0] + s[:, None] * self.line[1]
         sc = np.clip(s, 0.0, self.length)
         p = np.column_stack(splev(self.u_of_s(sc), self.tck))
         return p + (s - sc)[:, None] * self.tangent(sc)
@@ -87,6 +93,8 @@ class SkeletonCurve:
     def tangent(self, s: ArrayLike) -> np.ndarray:
         """Unit tangent τ(s), (n, 3) float (end tangents outside [0, L])."""
         s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.length)
+        if self.line is not None:
+            return np.repeat(self.line[1][None, :], len(s), axis=0)
         d = np.column_stack(splev(self.u_of_s(s), self.tck, der=1))
         return unit(d)[0]
 
@@ -127,7 +135,8 @@ def line_curve(start: ArrayLike, direction: ArrayLike, length: float,
     """A straight curve from ``start`` along ``direction`` for ``length`` mm."""
     d = unit(direction)[0][0]
     a = np.asarray(start, dtype=float)
-    return fit_curve(np.vstack([a, a + max(length, 1e-3) * d]), source=source)
+    curve = fit_curve(np.vstack([a, a + max(length, 1e-3) * d]), source=source)
+    return replace(curve, line=(a.copy(), d))
 
 
 def solid_proxy(mesh: trimesh.Trimesh, cells: int = PROXY_CELLS

@@ -128,33 +128,44 @@ def gap_fill(inner: BaseGeometry, domain: BaseGeometry, width: float) -> list[Pa
     return paths
 
 
-def _scanlines(rot: BaseGeometry, spacing: float
+def _rotation(angle: float) -> np.ndarray:
+    """(2, 2) float: row vectors times it turn the frame by −``angle``° (fill lines along x)."""
+    c, s = np.cos(np.radians(angle)), np.sin(np.radians(angle))
+    return np.array([[c, -s], [s, c]])
+
+
+def _scanlines(domain: BaseGeometry, spacing: float, fwd: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Horizontal grid lines y = (k + ½)·spacing clipped to ``rot``.
+    """Lines y' = (k + ½)·spacing of the turned frame (``xy @ fwd``) clipped to ``domain``.
+
+    The lines are turned into the domain's frame, not the domain into theirs: turning a
+    polygon whose parts nearly touch can make it invalid, and GEOS then clips garbage.
 
     Returns
     -------
     lo, hi, y : (m,) float
-        Left end, right end and height of each piece, sorted by (row, lo).
+        Left end, right end and height of each piece in the turned frame, sorted by (row, lo).
     row : (m,) int
         Grid index k of each piece.
     """
-    x0, y0, x1, y1 = rot.bounds
+    turned = shapely.get_coordinates(domain) @ fwd
+    (x0, y0), (x1, y1) = turned.min(axis=0), turned.max(axis=0)
     k = np.arange(np.floor(y0 / spacing - 0.5), np.ceil(y1 / spacing - 0.5) + 1)
     y = (k + 0.5) * spacing
     coords = np.stack([np.column_stack([np.full_like(y, x0 - 1), y]),
-                       np.column_stack([np.full_like(y, x1 + 1), y])], axis=1)
+                       np.column_stack([np.full_like(y, x1 + 1), y])], axis=1) @ fwd.T
     # one overlay of all lines at once (not one per line over the whole polygon)
-    parts = shapely.get_parts(shapely.intersection(shapely.multilinestrings(coords), rot))
+    parts = shapely.get_parts(shapely.intersection(shapely.multilinestrings(coords), domain))
     parts = parts[(shapely.get_type_id(parts) == 1) & (shapely.length(parts) > TOL.min_path)]
     if not len(parts):
         empty = np.zeros(0)
         return empty, empty, empty, np.zeros(0, dtype=int)
     xy, idx = shapely.get_coordinates(parts, return_index=True)
+    xy = xy @ fwd
     first = np.r_[0, np.flatnonzero(np.diff(idx)) + 1]
     lo, hi = np.minimum.reduceat(xy[:, 0], first), np.maximum.reduceat(xy[:, 0], first)
-    yy = xy[first, 1]
-    row = np.rint(yy / spacing - 0.5).astype(int)
+    row = np.rint(xy[first, 1] / spacing - 0.5).astype(int)
+    yy = (row + 0.5) * spacing
     order = np.lexsort((lo, row))
     return lo[order], hi[order], yy[order], row[order]
 
@@ -178,43 +189,63 @@ def _successors(ends: np.ndarray, row: np.ndarray) -> np.ndarray:
     return out
 
 
-def _around(rings: list[np.ndarray], a: np.ndarray, b: np.ndarray, limit: float
-            ) -> np.ndarray | None:
+@dataclass(frozen=True)
+class _Rings:
+    """The boundary rings of a fill domain as flat segment arrays (turned frame)."""
+
+    rings: list[np.ndarray]  # (n_r + 1, 2) closed rings
+    start: np.ndarray  # (S, 2) segment starts of all rings
+    vec: np.ndarray  # (S, 2) segment vectors
+    ring: np.ndarray  # (S,) ring of each segment
+    pos: np.ndarray  # (S,) arc length of each segment start along its ring
+
+    @classmethod
+    def of(cls, rings: list[np.ndarray]) -> _Rings:
+        vec = [np.diff(r, axis=0) for r in rings]
+        pos = [np.r_[0.0, np.cumsum(np.linalg.norm(v, axis=1))[:-1]] for v in vec]
+        return cls(rings, np.concatenate([r[:-1] for r in rings]), np.concatenate(vec),
+                   np.repeat(np.arange(len(rings)), [len(v) for v in vec]), np.concatenate(pos))
+
+    def locate(self, p: np.ndarray) -> tuple[int, float] | None:
+        """(ring, arc length) of the boundary point ``p``; None if ``p`` is off the boundary."""
+        t = np.clip(np.einsum("ij,ij->i", p - self.start, self.vec)
+                    / np.maximum(np.einsum("ij,ij->i", self.vec, self.vec), TOL.unit), 0.0, 1.0)
+        d = np.linalg.norm(self.start + t[:, None] * self.vec - p, axis=1)
+        k = int(np.argmin(d))
+        if d[k] > 1e3 * TOL.contain:
+            return None
+        return int(self.ring[k]), float(self.pos[k] + t[k] * np.linalg.norm(self.vec[k]))
+
+
+def _around(rings: _Rings, a: np.ndarray, b: np.ndarray, limit: float) -> np.ndarray | None:
     """The shorter way from ``a`` to ``b`` along the boundary ring through both, (k, 2) float
     without the ends; None if they lie on different rings or it is longer than ``limit``, or if
     it strays past the rows of ``a`` and ``b`` (it would run over other fill lines)."""
-    for ring in rings:
-        seg = np.diff(ring, axis=0)
-        s = np.r_[0.0, np.cumsum(np.linalg.norm(seg, axis=1))]
-        pos = []
-        for p in (a, b):
-            t = np.clip(np.einsum("ij,ij->i", p - ring[:-1], seg)
-                        / np.maximum(np.einsum("ij,ij->i", seg, seg), TOL.unit), 0.0, 1.0)
-            d = np.linalg.norm(ring[:-1] + t[:, None] * seg - p, axis=1)
-            k = int(np.argmin(d))
-            pos.append(s[k] + t[k] * (s[k + 1] - s[k]) if d[k] < 1e3 * TOL.contain else None)
-        if pos[0] is None or pos[1] is None:
-            continue
-        total = s[-1]
-        fwd = (pos[1] - pos[0]) % total
-        step = fwd if fwd <= total - fwd else fwd - total  # signed arc length, shorter way
-        if abs(step) > limit:
-            return None
-        u = (s[:-1] - pos[0]) % total  # each vertex's distance ahead of a
-        if step < 0:
-            u = (total - u) % total
-        pick = np.flatnonzero((u > 0) & (u < abs(step)))
-        via = ring[:-1][pick[np.argsort(u[pick])]]
-        lo, hi = sorted((a[1], b[1]))
-        if len(via) and (via[:, 1].min() < lo - TOL.contain or via[:, 1].max() > hi + TOL.contain):
-            return None
-        return via
-    return None
+    pa, pb = rings.locate(a), rings.locate(b)
+    if pa is None or pb is None or pa[0] != pb[0]:
+        return None
+    ring = rings.rings[pa[0]]
+    s = rings.pos[rings.ring == pa[0]]
+    total = s[-1] + float(np.linalg.norm(ring[-1] - ring[-2]))
+    fwd = (pb[1] - pa[1]) % total
+    step = fwd if fwd <= total - fwd else fwd - total  # signed arc length, shorter way
+    if abs(step) > limit:
+        return None
+    u = (s - pa[1]) % total  # each vertex's distance ahead of a
+    if step < 0:
+        u = (total - u) % total
+    pick = np.flatnonzero((u > 0) & (u < abs(step)))
+    via = ring[:-1][pick[np.argsort(u[pick])]]
+    lo, hi = sorted((a[1], b[1]))
+    if len(via) and (via[:, 1].min() < lo - TOL.contain or via[:, 1].max() > hi + TOL.contain):
+        return None
+    return via
 
 
-def _links(rot: BaseGeometry, lo: np.ndarray, hi: np.ndarray, y: np.ndarray, row: np.ndarray,
-           spacing: float) -> tuple[np.ndarray, dict[tuple[int, int], np.ndarray]]:
-    """Usable connectors to the next row.
+def _links(domain: BaseGeometry, fwd: np.ndarray, lo: np.ndarray, hi: np.ndarray, y: np.ndarray,
+           row: np.ndarray, spacing: float
+           ) -> tuple[np.ndarray, dict[tuple[int, int], np.ndarray]]:
+    """Usable connectors to the next row (coordinates in the turned frame ``xy @ fwd``).
 
     Returns
     -------
@@ -234,12 +265,15 @@ def _links(rot: BaseGeometry, lo: np.ndarray, hi: np.ndarray, y: np.ndarray, row
     limit = MAX_LINK * spacing
     ok = np.linalg.norm(b - a, axis=1) <= limit
     if ok.any():
-        room = rot.buffer(TOL.contain)
+        room = domain.buffer(TOL.contain)
         shapely.prepare(room)
-        ok[ok] = shapely.covers(room, shapely.linestrings(np.stack([a[ok], b[ok]], axis=1)))
-    rings = [shapely.get_coordinates(r) for r in shapely.get_rings(shapely.get_parts(rot))]
+        segs = np.stack([a[ok], b[ok]], axis=1) @ fwd.T
+        ok[ok] = shapely.covers(room, shapely.linestrings(segs))
     via = {}
+    rings = None
     for k in np.flatnonzero(~ok):
+        rings = rings or _Rings.of([shapely.get_coordinates(r) @ fwd
+                                    for r in shapely.get_rings(shapely.get_parts(domain))])
         path = _around(rings, a[k], b[k], limit)
         if path is not None:
             ok[k], via[(int(i[k]), int(side[k]))] = True, path
@@ -281,17 +315,15 @@ def hatch(domain: BaseGeometry, spacing: float, angle: float, width: float,
     """
     if domain.is_empty or spacing <= 0:
         return []
-    rot = shapely.affinity.rotate(domain, -angle, origin=(0.0, 0.0))
-    lo, hi, y, row = _scanlines(rot, spacing)
+    fwd = _rotation(angle)
+    lo, hi, y, row = _scanlines(domain, spacing, fwd)
     if not len(lo):
         return []
     if link:
-        chains = _zigzag(lo, hi, y, *_links(rot, lo, hi, y, row, spacing))
+        chains = _zigzag(lo, hi, y, *_links(domain, fwd, lo, hi, y, row, spacing))
     else:
         chains = list(np.stack([np.column_stack([lo, y]), np.column_stack([hi, y])], axis=1))
-    c, s = np.cos(np.radians(angle)), np.sin(np.radians(angle))
-    back = np.array([[c, s], [-s, c]])
-    return [Path2D(kind, xy @ back, False, width) for xy in chains]
+    return [Path2D(kind, xy @ fwd.T, False, width) for xy in chains]
 
 
 def mark_interface(paths: list[Path2D], zone: BaseGeometry, width: float) -> list[Path2D]:

@@ -52,10 +52,9 @@ def exposed(domain: BaseGeometry, region: BaseGeometry,
     differ = [g for g in neighbours if not shapely.equals_exact(g, region, tolerance=TOL.same)]
     if not differ:
         return shapely.Polygon()
-    cover = domain  # GEOS clips each operand to the other's envelope before overlaying
-    for g in differ:
-        cover = shapely.intersection(cover, g)
-    return polygonal(shapely.difference(domain, cover), valid=True)
+    # D − ∩ g = ∪ (D − g): D is an offset of R, so D − g overlays no coincident edges, while
+    # D − (D ∩ g) would overlay D with itself
+    return polygonal(shapely.union_all(shapely.difference(domain, differ)), valid=True)
 
 
 def solid_zones(layers: Sequence[LayerPlane], k: int, grounded: bool,
