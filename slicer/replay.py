@@ -27,7 +27,7 @@ from slicer.gcode_reader import GcodeFormatError, ParsedGcode, read_gcode
 from slicer.printhead import Printhead
 from slicer.replay_collide import find_collisions
 from slicer.replay_coverage import coverage
-from slicer.replay_geometry import inside, surface_distance
+from slicer.replay_geometry import ModelIndex
 from slicer.replay_samples import (
     Samples,
     extruding_moves,
@@ -113,10 +113,11 @@ def _head(parsed: ParsedGcode, head: Printhead | None) -> Printhead:
     return Printhead(tuple(tuple(map(float, s)) for s in segs)) if segs else Printhead()
 
 
-def platform_triangles(mesh: trimesh.Trimesh, placement: np.ndarray) -> np.ndarray:
-    """The model's triangles moved into the platform frame, (t, 3, 3)."""
+def _placed_mesh(mesh: trimesh.Trimesh, placement: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The model's vertices moved into the platform frame (v, 3) and its faces (t, 3)."""
     v = np.asarray(mesh.vertices, dtype=float) @ placement[:3, :3].T + placement[:3, 3]
-    return v[np.asarray(mesh.faces)]
+    return v, np.asarray(mesh.faces)
 
 
 def part_frame_path(parsed: ParsedGcode) -> np.ndarray:
@@ -146,7 +147,6 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     head = _head(parsed, head)
     radius = platform_radius if platform_radius is not None else float(
         parsed.headers.get("KINEMATICS", {}).get("platform_radius", 150.0))
-    tris = platform_triangles(mesh, np.eye(4) if placed else _placement(parsed))
     bead_area = math.pi * proc["filament_diameter"] ** 2 / 4.0 / w
     ext = extruding_moves(parsed)
     s = sample_moves(parsed, geo, ext, 0.5 * w, TIP_ANGLE, bead_area,
@@ -154,22 +154,26 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     timings["sample"] = time.perf_counter() - t0
 
     t1 = time.perf_counter()
-    dist = surface_distance(tris, s.p, WALL_SLACK * w)
-    wall = np.isfinite(dist)
+    model = ModelIndex(*_placed_mesh(mesh, np.eye(4) if placed else _placement(parsed)))
+    timings["index"] = time.perf_counter() - t1
+    t1 = time.perf_counter()
+    bound = model.nearest_bound(s.p, WALL_SLACK * w)
+    wall = model.within(s.p, WALL_SLACK * w, bound)
     probe = np.arange(0, len(s), INSIDE_STRIDE)
-    inside_share = float(np.mean(inside(tris, s.p[probe]) | (dist[probe] <= INSIDE_SLACK * w))
+    near = np.isfinite(model.distance(s.p[probe], INSIDE_SLACK * w, bound[probe]))
+    inside_share = float(np.mean(model.inside(s.p[probe], bound[probe]) | near)
                          ) if len(s) else 1.0
     timings["inside"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
     ok = strict_support(s, t, w, radius)
     cand = ~ok & ~wall
-    cand[cand] = inside(tris, s.p[cand])
+    cand[cand] = model.inside(s.p[cand], bound[cand])
     bridge = bridged(s, cand, t, w, proc["infill_density"])
     timings["support"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()
-    cov, shell_cov = coverage(tris, s, w, t, int(proc["perimeters"]), proc["infill_density"])
+    cov, shell_cov = coverage(model, s, w, t, int(proc["perimeters"]), proc["infill_density"])
     timings["coverage"] = time.perf_counter() - t1
 
     t1 = time.perf_counter()

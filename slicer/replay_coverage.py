@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from slicer.replay_geometry import surface_distance, volume_grid
+from slicer.replay_columns import volume_grid
+from slicer.replay_geometry import ModelIndex
 from slicer.replay_samples import Samples
 
 MAX_GRID = 60_000
@@ -62,13 +63,13 @@ def _core_covered(g: np.ndarray, s: Samples, tree: cKDTree, lateral: float, t: f
     return (valid & (np.abs(ax) <= 1.5 * t)).any(axis=1)
 
 
-def coverage(tris: np.ndarray, s: Samples, line_width: float, layer_height: float,
+def coverage(model: ModelIndex, s: Samples, line_width: float, layer_height: float,
              perimeters: int, infill_density: float) -> tuple[float, float]:
     """Share of the model volume covered, overall and in the shell.
 
     Parameters
     ----------
-    tris : (t, 3, 3) float
+    model : ModelIndex
         The model in the platform frame.
     s : Samples
         Deposited samples.
@@ -78,14 +79,14 @@ def coverage(tris: np.ndarray, s: Samples, line_width: float, layer_height: floa
     (total, shell) : float, float
         Shares in [0, 1] (1.0 for an empty model).
     """
-    pitch = grid_pitch(mesh_volume(tris))
-    g = volume_grid(tris, pitch)
+    pitch = grid_pitch(mesh_volume(model.tris))
+    g = volume_grid(model.tris, pitch)
     if len(g) == 0:
         return 1.0, 1.0
     if len(s) == 0:
         return 0.0, 0.0
     depth = max(perimeters, 1) * line_width
-    shell = np.isfinite(surface_distance(tris, g, depth))
+    shell = model.within(g, depth)
     tree = cKDTree(s.p)
     covered = np.zeros(len(g), dtype=bool)
     covered[shell] = _shell_covered(g[shell], s, tree, line_width, layer_height)

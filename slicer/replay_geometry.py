@@ -1,138 +1,30 @@
-"""Vectorised mesh queries of the replay check: inside test, distance to surface, volume grid.
+"""Mesh queries of the replay check: distance to the surface and inside test, built once per model.
 
-Triangles are binned into a regular grid (xy columns for ray casting, 3D cells for distance
-queries), so each point meets only the triangles near it; every test is exact on those.
+:class:`ModelIndex` keeps
+
+* a KD-tree of *surface samples* (:func:`surface_samples`): every surface point lies within
+  ``cover = SURFACE_COVER`` of one. The nearest sample bounds a point's distance d to the
+  surface: ``d0 − cover ≤ d ≤ d0``. Only points whose bound straddles a threshold are
+  resolved exactly, against the triangles of the samples within ``threshold + cover``;
+* a :class:`~slicer.replay_columns.ColumnGrid` of vertical lines at ``INSIDE_PITCH``: a
+  point farther than ``INSIDE_PITCH / √2`` from the surface is inside exactly when the line
+  through its nearest node crosses the mesh an odd number of times above it;
+* the mesh as a ``manifold3d`` solid, whose ray cast decides the few points closer than that.
 """
 
 from __future__ import annotations
 
+import math
+
+import manifold3d as m3
 import numpy as np
+from scipy.spatial import cKDTree
 
-CELL = 0.5  # mm: bin size of the triangle grids
-_JITTER = np.array([1.234567e-7, 2.345678e-7])  # moves query columns off shared edges
+from slicer.replay_columns import ColumnGrid
 
-
-def _cell_entries(lo: np.ndarray, hi: np.ndarray, origin: np.ndarray, cell: float,
-                  dims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Grid keys of every cell each box [lo, hi] (k, d) overlaps: (keys, box index), sorted."""
-    i0 = np.floor((lo - origin) / cell).astype(np.int64)
-    i1 = np.floor((hi - origin) / cell).astype(np.int64)
-    i0 = np.clip(i0, 0, dims - 1)
-    i1 = np.clip(i1, 0, dims - 1)
-    span = i1 - i0 + 1
-    counts = np.prod(span, axis=1)
-    owner = np.repeat(np.arange(len(lo)), counts)
-    local = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
-    key = np.zeros(len(owner), dtype=np.int64)
-    stride = 1
-    for ax in range(lo.shape[1] - 1, -1, -1):
-        sub = span[owner, ax]
-        idx = local % sub
-        local = local // sub
-        key += (i0[owner, ax] + idx) * stride
-        stride *= int(dims[ax])
-    order = np.argsort(key, kind="stable")
-    return key[order], owner[order]
-
-
-def _point_keys(points: np.ndarray, origin: np.ndarray, cell: float, dims: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Grid key of each point and whether it lies inside the grid."""
-    idx = np.floor((points - origin) / cell).astype(np.int64)
-    ok = np.all((idx >= 0) & (idx < dims), axis=1)
-    idx = np.clip(idx, 0, dims - 1)
-    key = np.zeros(len(points), dtype=np.int64)
-    stride = 1
-    for ax in range(points.shape[1] - 1, -1, -1):
-        key += idx[:, ax] * stride
-        stride *= int(dims[ax])
-    return key, ok
-
-
-def _pairs(keys: np.ndarray, owner: np.ndarray, pkey: np.ndarray, ok: np.ndarray
-           ) -> tuple[np.ndarray, np.ndarray]:
-    """(point index, triangle index) of every point/triangle sharing a cell."""
-    lo = np.searchsorted(keys, pkey, side="left")
-    hi = np.searchsorted(keys, pkey, side="right")
-    n = np.where(ok, hi - lo, 0)
-    pi = np.repeat(np.arange(len(pkey)), n)
-    off = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
-    return pi, owner[np.repeat(lo, n) + off]
-
-
-def _column_crossings(tris: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Heights where vertical lines through ``xy`` (m, 2) cross the mesh.
-
-    Returns
-    -------
-    column : (k,) int
-        Which line.
-    z : (k,) float
-        Height of the crossing.
-    """
-    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
-    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (c[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-    keep = np.abs(area) > 1e-12
-    t = tris[keep]
-    area = area[keep]
-    lo, hi = t[:, :, :2].min(axis=1), t[:, :, :2].max(axis=1)
-    origin = np.minimum(lo.min(axis=0), xy.min(axis=0)) - CELL
-    dims = np.ceil((np.maximum(hi.max(axis=0), xy.max(axis=0)) - origin) / CELL).astype(
-        np.int64) + 2
-    keys, owner = _cell_entries(lo, hi, origin, CELL, dims)
-    pkey, ok = _point_keys(xy, origin, CELL, dims)
-    pi, ti = _pairs(keys, owner, pkey, ok)
-    q = xy[pi]
-    a, b, c = t[ti, 0], t[ti, 1], t[ti, 2]
-    w0 = ((b[:, 0] - q[:, 0]) * (c[:, 1] - q[:, 1]) - (c[:, 0] - q[:, 0]) * (b[:, 1] - q[:, 1]))
-    w1 = ((c[:, 0] - q[:, 0]) * (a[:, 1] - q[:, 1]) - (a[:, 0] - q[:, 0]) * (c[:, 1] - q[:, 1]))
-    w0, w1 = w0 / area[ti], w1 / area[ti]
-    w2 = 1.0 - w0 - w1
-    hit = (w0 >= 0) & (w1 >= 0) & (w2 >= 0)
-    z = w0 * a[:, 2] + w1 * b[:, 2] + w2 * c[:, 2]
-    return pi[hit], z[hit]
-
-
-def inside(tris: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Which points lie inside a closed triangle mesh (ray parity along +z).
-
-    Parameters
-    ----------
-    tris : (t, 3, 3) float
-    points : (n, 3) float
-
-    Returns
-    -------
-    (n,) bool
-    """
-    p = np.asarray(points, dtype=float).reshape(-1, 3)
-    if len(p) == 0:
-        return np.zeros(0, dtype=bool)
-    col, z = _column_crossings(tris, p[:, :2] + _JITTER)
-    above = z > p[col, 2]
-    return np.bincount(col[above], minlength=len(p)) % 2 == 1
-
-
-def volume_grid(tris: np.ndarray, pitch: float) -> np.ndarray:
-    """Cell centres of a regular grid of ``pitch`` that lie inside the mesh, (m, 3)."""
-    lo, hi = tris.reshape(-1, 3).min(axis=0), tris.reshape(-1, 3).max(axis=0)
-    axes = [np.arange(lo[k] + pitch / 2, hi[k], pitch) for k in range(3)]
-    gx, gy = np.meshgrid(axes[0], axes[1], indexing="ij")
-    xy = np.column_stack([gx.ravel(), gy.ravel()])
-    col, z = _column_crossings(tris, xy + _JITTER)
-    zs = axes[2]
-    # crossings above each grid height, per column: sort by (column, z) and search
-    order = np.lexsort((z, col))
-    col, z = col[order], z[order]
-    span = float(hi[2] - lo[2]) + 4 * pitch
-    key = col * span + (z - lo[2] + pitch)
-    qcol = np.repeat(np.arange(len(xy)), len(zs))
-    qz = np.tile(zs, len(xy))
-    qkey = qcol * span + (qz - lo[2] + pitch)
-    below = np.searchsorted(key, qkey, side="right")
-    end = np.searchsorted(col, np.arange(len(xy)), side="right")[qcol]
-    mask = (end - below) % 2 == 1
-    return np.column_stack([xy[qcol[mask]], qz[mask]])
+SURFACE_COVER = 0.2  # mm: every surface point lies this close to a surface sample
+INSIDE_PITCH = 0.1  # mm: spacing of the vertical lines of the inside test
+_UP = np.array([0.0, 0.0, 1.0])
 
 
 def _segment_d2(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -143,8 +35,8 @@ def _segment_d2(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", d, d)
 
 
-def _triangle_d2(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """Squared distance from each point to its triangle, (k,)."""
+def triangle_d2(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Squared distance from each point (k, 3) to its triangle (a, b, c each (k, 3)), (k,)."""
     ab, ac, ap = b - a, c - a, p - a
     d00 = np.einsum("ij,ij->i", ab, ab)
     d01 = np.einsum("ij,ij->i", ab, ac)
@@ -165,44 +57,142 @@ def _triangle_d2(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> 
     return np.where(interior, plane, edges)
 
 
-def surface_distance(tris: np.ndarray, points: np.ndarray, max_distance: float) -> np.ndarray:
-    """Distance from each point to the mesh surface, ``inf`` where above ``max_distance``.
+def surface_samples(tris: np.ndarray, cover: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points on the triangles (t, 3, 3) such that every surface point lies within ``cover``.
 
-    Parameters
-    ----------
-    tris : (t, 3, 3) float
-    points : (n, 3) float
-    max_distance : float
+    Each triangle is cut by rows parallel to its longest edge, ``cover / √2`` apart from that
+    edge to the opposite vertex, with points ``√2 · cover`` apart along each row (ends
+    included). The opposite vertex projects inside the longest edge, so a row's segment
+    contains the projection of every point between it and the next row: a point drops at
+    most ``cover / √2`` to a row, then runs at most ``cover / √2`` along it. The count is
+    about area / cover² plus a row per ``cover`` of height, slivers included.
 
     Returns
     -------
-    (n,) float
+    points : (m, 3) float
+    owner : (m,) int
+        The triangle each point lies on.
     """
-    p = np.asarray(points, dtype=float).reshape(-1, 3)
-    out = np.full(len(p), np.inf)
-    if len(p) == 0:
-        return out
-    cell = max(CELL, 2.0 * max_distance)
-    lo, hi = tris.min(axis=1) - max_distance, tris.max(axis=1) + max_distance
-    origin = np.minimum(lo.min(axis=0), p.min(axis=0)) - cell
-    dims = np.ceil((np.maximum(hi.max(axis=0), p.max(axis=0)) - origin) / cell).astype(
-        np.int64) + 2
-    keys, owner = _cell_entries(lo, hi, origin, cell, dims)
-    pkey, ok = _point_keys(p, origin, cell, dims)
-    normal = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
-    norm = np.linalg.norm(normal, axis=1, keepdims=True)
-    unit = np.where(norm > 0, normal / np.where(norm > 0, norm, 1.0), 0.0)
-    for chunk in np.array_split(np.arange(len(p)), max(1, len(p) // 200_000)):
-        pi, ti = _pairs(keys, owner, pkey[chunk], ok[chunk])
-        if len(pi) == 0:
-            continue
-        q = p[chunk][pi]
-        near = np.abs(np.einsum("ij,ij->i", q - tris[ti, 0], unit[ti])) <= max_distance
-        pi, ti, q = pi[near], ti[near], q[near]
-        if len(pi) == 0:
-            continue
-        d2 = _triangle_d2(q, tris[ti, 0], tris[ti, 1], tris[ti, 2])
+    gap_v, gap_h = cover / math.sqrt(2.0), cover * math.sqrt(2.0)
+    edge = np.stack([np.linalg.norm(tris[:, (i + 2) % 3] - tris[:, (i + 1) % 3], axis=1)
+                     for i in range(3)], axis=1)  # edge i lies opposite vertex i
+    k = edge.argmax(axis=1)
+    rows = np.arange(len(tris))
+    apex, p0, p1 = (tris[rows, (k + i) % 3] for i in range(3))
+    base = edge[rows, k]
+    height = np.linalg.norm(np.cross(p1 - p0, apex - p0), axis=1) / np.maximum(base, 1e-300)
+    m = np.maximum(np.ceil(height / gap_v), 1).astype(np.int64)
+    tri, j = _spans(m + 1)
+    t = (j / m[tri])[:, None]
+    start = p0[tri] + t * (apex[tri] - p0[tri])
+    end = p1[tri] + t * (apex[tri] - p1[tri])
+    count = np.ceil(base[tri] * (1.0 - t[:, 0]) / gap_h - 1e-9).astype(np.int64) + 1
+    row, i = _spans(count)
+    f = (i / np.maximum(count[row] - 1, 1))[:, None]
+    return start[row] + f * (end[row] - start[row]), tri[row]
+
+
+def _spans(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(owner, k) for ``n[i]`` consecutive entries per owner i: owner index and 0..n[i]-1."""
+    owner = np.repeat(np.arange(len(n)), n)
+    return owner, np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+
+
+def _solid(vertices: np.ndarray, faces: np.ndarray) -> m3.Manifold | None:
+    """The mesh as a manifold3d solid, or None when it is not a valid manifold."""
+    solid = m3.Manifold(m3.Mesh64(np.ascontiguousarray(vertices, dtype=np.float64),
+                                  np.ascontiguousarray(faces, dtype=np.uint64)))
+    return solid if solid.status() == m3.Error.NoError and not solid.is_empty() else None
+
+
+class ModelIndex:
+    """Distance and inside queries against one closed mesh (see the module docstring).
+
+    Parameters
+    ----------
+    vertices : (v, 3) float
+    faces : (t, 3) int
+    """
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self.tris = np.asarray(vertices, dtype=float)[np.asarray(faces)]
+        points, self._owner = surface_samples(self.tris, SURFACE_COVER)
+        self._tree = cKDTree(points)
+        self.cover = SURFACE_COVER
+        self._top = float(self.tris[:, :, 2].max()) + 1.0
+        self._columns = ColumnGrid.build(self.tris, INSIDE_PITCH)
+        self._solid = _solid(vertices, faces)
+
+    def nearest_bound(self, points: np.ndarray, cap: float) -> np.ndarray:
+        """Distance to the nearest surface sample (≥ the true distance), ``inf`` above ``cap``."""
+        if len(points) == 0:
+            return np.zeros(0)
+        d, _ = self._tree.query(points, distance_upper_bound=cap + self.cover, workers=-1)
+        return d
+
+    def _exact(self, p: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """Exact distance of each point (k, 3) to the triangles of the samples within
+        ``radius`` (k,) of it (``inf`` when there are none), (k,)."""
+        out = np.full(len(p), np.inf)
+        if len(p) == 0:
+            return out
+        near = self._tree.query_ball_point(p, radius, workers=-1, return_sorted=False)
+        counts = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(p))
+        if counts.sum() == 0:
+            return out
+        pi = np.repeat(np.arange(len(p)), counts)
+        ti = self._owner[np.concatenate([np.asarray(x, dtype=np.int64) for x in near])]
+        pair = np.unique(pi * len(self.tris) + ti)
+        pi, ti = pair // len(self.tris), pair % len(self.tris)
+        t = self.tris[ti]
+        d2 = triangle_d2(p[pi], t[:, 0], t[:, 1], t[:, 2])
         starts = np.flatnonzero(np.r_[True, pi[1:] != pi[:-1]])
-        out[chunk[pi[starts]]] = np.sqrt(np.minimum.reduceat(d2, starts))
-    out[out > max_distance] = np.inf
-    return out
+        out[pi[starts]] = np.sqrt(np.minimum.reduceat(d2, starts))
+        return out
+
+    def within(self, points: np.ndarray, limit: float, bound: np.ndarray | None = None
+               ) -> np.ndarray:
+        """Whether each point (n, 3) lies within ``limit`` of the surface, (n,) bool (exact).
+
+        ``bound`` is :meth:`nearest_bound` of the points with a cap ≥ ``limit``.
+        """
+        p = np.asarray(points, dtype=float).reshape(-1, 3)
+        d0 = self.nearest_bound(p, limit) if bound is None else bound
+        out = d0 <= limit
+        band = np.flatnonzero(~out & (d0 - self.cover <= limit))
+        out[band] = self._exact(p[band], np.full(len(band), limit + self.cover)) <= limit
+        return out
+
+    def distance(self, points: np.ndarray, limit: float, bound: np.ndarray | None = None
+                 ) -> np.ndarray:
+        """Exact distance to the surface where it is ≤ ``limit``, else ``inf``, (n,).
+
+        ``bound`` is :meth:`nearest_bound` of the points with a cap ≥ ``limit``.
+        """
+        p = np.asarray(points, dtype=float).reshape(-1, 3)
+        d0 = self.nearest_bound(p, limit) if bound is None else bound
+        out = np.full(len(p), np.inf)
+        idx = np.flatnonzero(d0 - self.cover <= limit)
+        d = self._exact(p[idx], np.minimum(d0[idx], limit) + self.cover)
+        out[idx] = np.where(d <= limit, d, np.inf)
+        return out
+
+    def inside(self, points: np.ndarray, bound: np.ndarray | None = None) -> np.ndarray:
+        """Which points (n, 3) lie inside the closed mesh, (n,) bool.
+
+        ``bound`` is :meth:`nearest_bound` of the points (any cap; computed when not given).
+        """
+        p = np.asarray(points, dtype=float).reshape(-1, 3)
+        if len(p) == 0:
+            return np.zeros(0, dtype=bool)
+        out = self._columns.parity_inside(p)
+        if self._solid is None:
+            return out
+        close = INSIDE_PITCH / math.sqrt(2.0)
+        d0 = self.nearest_bound(p, close) if bound is None else bound
+        idx = np.flatnonzero(d0 - self.cover <= close)
+        idx = idx[np.isfinite(self.distance(p[idx], close, d0[idx]))]
+        for i in idx:
+            hits = self._solid.ray_cast(p[i], np.array([p[i, 0], p[i, 1], self._top]))
+            out[i] = len(hits) % 2 == 1
+        return out
