@@ -17,7 +17,8 @@
   lines.
 * **Interface walls**: in a parent's interface zone (under a child's base) the wall loops are
   split and the pieces whose bead reaches into the zone get kind "interface": on a thin wall
-  the perimeters *are* the solid material the child bonds to.
+  the perimeters *are* the solid material the child bonds to. What their beads leave of the
+  zone (slivers too thin for a perimeter) gets centre loops of kind "interface".
 * **Order**: greedy nearest neighbour from the current nozzle position; loops start at their
   vertex nearest the nozzle, open lines may be reversed.
 """
@@ -114,9 +115,13 @@ def gap_fill(inner: BaseGeometry, domain: BaseGeometry, width: float) -> list[Pa
     its middle whose width is the band's mean width (2·area / boundary length).
     """
     reach = domain.buffer((0.5 - OVERLAP) * width, quad_segs=QUAD_SEGS)
-    rest = shapely.get_parts(polygonal(inner.difference(reach), valid=True))
+    return _centre_loops(polygonal(inner.difference(reach), valid=True), width, "perimeter")
+
+
+def _centre_loops(bands: BaseGeometry, width: float, kind: str) -> list[Path2D]:
+    """One loop along the middle of each band, as wide as the band (at most 1.5·width)."""
     paths = []
-    for band in rest:
+    for band in shapely.get_parts(bands):
         w = 2.0 * band.area / max(band.length, TOL.min_path)
         if w < MIN_GAP * width or band.area < (MIN_GAP * width) ** 2:
             continue
@@ -124,8 +129,29 @@ def gap_fill(inner: BaseGeometry, domain: BaseGeometry, width: float) -> list[Pa
         for poly in shapely.get_parts(core):
             xy = shapely.get_coordinates(poly.exterior)[:-1]
             if len(xy) >= 3:
-                paths.append(Path2D("perimeter", xy, True, float(min(w, 1.5 * width))))
+                paths.append(Path2D(kind, xy, True, float(min(w, 1.5 * width))))
     return paths
+
+
+def interface_gaps(walls: list[Path2D], zone: BaseGeometry, domain: BaseGeometry,
+                   width: float) -> list[Path2D]:
+    """Loops of kind "interface" in what the wall beads and the fill of ``domain`` leave of
+    ``zone``.
+
+    Slivers of a section thinner than a line get no perimeter, and the band between the
+    perimeters and the gap fill is not always closed; under a child's base everything must
+    be solid.
+    """
+    if zone.is_empty:
+        return []
+    marked = [p for p in walls if p.kind == "interface"]
+    lines = np.array([shapely.LineString(np.vstack([p.xy, p.xy[:1]]) if p.closed else p.xy)
+                      for p in marked], dtype=object)
+    beads = shapely.union_all(np.r_[shapely.buffer(lines, [0.5 * p.width for p in marked],
+                                                   quad_segs=QUAD_SEGS),
+                                    domain.buffer(0.5 * width, quad_segs=QUAD_SEGS)])
+    rest = zone if beads.is_empty else polygonal(zone.difference(beads), valid=True)
+    return _centre_loops(rest, width, "interface")
 
 
 def _rotation(angle: float) -> np.ndarray:
@@ -445,6 +471,8 @@ def layer_paths(region: BaseGeometry, solid: BaseGeometry, interface: BaseGeomet
     sh = shell(region, spec) if walls is None else walls
     here = np.zeros(2) if start is None else start
     ordered = mark_interface(order_paths(sh.walls, here), interface, spec.width)
+    here = _end(ordered[-1]) if ordered else here
+    ordered += order_paths(interface_gaps(ordered, interface, sh.domain, spec.width), here)
     here = _end(ordered[-1]) if ordered else here
     return ordered + order_paths(fill_paths(sh.domain, solid, interface, spec, layer_index),
                                  here)
