@@ -161,12 +161,21 @@ def _pair_hits(tips: Samples, group: np.ndarray, beads: np.ndarray, bead_move: n
     return ti[first], oi[first]
 
 
+def axis_groups(u: np.ndarray) -> np.ndarray:
+    """Group id of each unit axis (n, 3), equal for axes equal to 1e-9, (n,) int."""
+    q = np.round(u * 1e9).astype(np.int64)
+    key = q[:, 0] * 1_000_003 ** 2 + q[:, 1] * 1_000_003 + q[:, 2]  # wraps: a hash
+    _, first, group = np.unique(key, return_index=True, return_inverse=True)
+    if np.array_equal(q[first][group], q):
+        return group.ravel()
+    return np.unique(q, axis=0, return_inverse=True)[1].ravel()  # a hash collision
+
+
 def _material_hits(tips: Samples, deposits: Samples, part: HeadPart, pitch: float
                    ) -> list[tuple[int, int]]:
     beads = deposits.p - deposits.u * (deposits.h[:, None] / 2.0)
     reps = voxel_representatives(beads, deposits.move, pitch)
-    _, group = np.unique(np.round(tips.u, 9), axis=0, return_inverse=True)
-    group = group.ravel()
+    group = axis_groups(tips.u)
     hits: list[tuple[int, int]] = []
     for g in np.unique(group):
         ti, oi = _group_hits(tips, np.flatnonzero(group == g), beads[reps],

@@ -22,8 +22,8 @@ from scipy.spatial import cKDTree
 
 from slicer.replay_columns import ColumnGrid
 
-SURFACE_COVER = 0.2  # mm: every surface point lies this close to a surface sample
-INSIDE_PITCH = 0.1  # mm: spacing of the vertical lines of the inside test
+SURFACE_COVER = 0.15  # mm: every surface point lies this close to a surface sample
+INSIDE_PITCH = 0.05  # mm: spacing of the vertical lines of the inside test
 _UP = np.array([0.0, 0.0, 1.0])
 
 
@@ -67,12 +67,24 @@ def surface_samples(tris: np.ndarray, cover: float) -> tuple[np.ndarray, np.ndar
     most ``cover / √2`` to a row, then runs at most ``cover / √2`` along it. The count is
     about area / cover² plus a row per ``cover`` of height, slivers included.
 
+    A triangle whose vertices all lie within ``cover`` of its centroid is sampled by the
+    centroid alone (the farthest point of a triangle from any point is a vertex).
+
     Returns
     -------
     points : (m, 3) float
     owner : (m,) int
         The triangle each point lies on.
     """
+    centre = tris.mean(axis=1)
+    small = np.linalg.norm(tris - centre[:, None], axis=2).max(axis=1) <= cover
+    pts, own = _row_samples(tris[~small], cover)
+    return (np.concatenate([centre[small], pts]),
+            np.concatenate([np.flatnonzero(small), np.flatnonzero(~small)[own]]))
+
+
+def _row_samples(tris: np.ndarray, cover: float) -> tuple[np.ndarray, np.ndarray]:
+    """The row samples of :func:`surface_samples`: (points (m, 3), owner (m,))."""
     gap_v, gap_h = cover / math.sqrt(2.0), cover * math.sqrt(2.0)
     edge = np.stack([np.linalg.norm(tris[:, (i + 2) % 3] - tris[:, (i + 1) % 3], axis=1)
                      for i in range(3)], axis=1)  # edge i lies opposite vertex i
@@ -177,10 +189,11 @@ class ModelIndex:
         out[idx] = np.where(d <= limit, d, np.inf)
         return out
 
-    def inside(self, points: np.ndarray, bound: np.ndarray | None = None) -> np.ndarray:
+    def inside(self, points: np.ndarray, near: np.ndarray | None = None) -> np.ndarray:
         """Which points (n, 3) lie inside the closed mesh, (n,) bool.
 
-        ``bound`` is :meth:`nearest_bound` of the points (any cap; computed when not given).
+        ``near`` is :meth:`distance` of the points with a limit ≥ ``INSIDE_PITCH / √2``
+        (computed when not given): only points that close need a ray of their own.
         """
         p = np.asarray(points, dtype=float).reshape(-1, 3)
         if len(p) == 0:
@@ -189,10 +202,13 @@ class ModelIndex:
         if self._solid is None:
             return out
         close = INSIDE_PITCH / math.sqrt(2.0)
-        d0 = self.nearest_bound(p, close) if bound is None else bound
-        idx = np.flatnonzero(d0 - self.cover <= close)
-        idx = idx[np.isfinite(self.distance(p[idx], close, d0[idx]))]
-        for i in idx:
+        d = self.distance(p, close) if near is None else near
+        for i in np.flatnonzero(d <= close):
             hits = self._solid.ray_cast(p[i], np.array([p[i, 0], p[i, 1], self._top]))
             out[i] = len(hits) % 2 == 1
         return out
+
+    def parity_inside(self, points: np.ndarray) -> np.ndarray:
+        """The column test alone: exact for points farther than ``INSIDE_PITCH / √2`` from the
+        surface (cheaper than :meth:`inside` where closer points are judged otherwise)."""
+        return self._columns.parity_inside(np.asarray(points, dtype=float).reshape(-1, 3))

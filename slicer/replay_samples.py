@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kinematics.machine import MachineGeometry
-from kinematics.transform import inverse, table_rotation
+from kinematics.transform import inverse
 from slicer.gcode_reader import GcodeFormatError, ParsedGcode
 
 
@@ -70,10 +70,12 @@ def geometry_from_header(parsed: ParsedGcode) -> MachineGeometry:
 def nozzle_axes(a: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Machine +Z in the platform frame for table angles (degrees), (n, 3).
 
-    Computed once per distinct (A, C): a file holds few.
+    The last row of ``Rx(A) · Rz(C)`` (:func:`kinematics.transform.table_rotation`):
+    ``(sin A sin C, sin A cos C, cos A)``.
     """
-    ac, inv = np.unique(np.column_stack([a, c]), axis=0, return_inverse=True)
-    return table_rotation(ac[:, 0], ac[:, 1])[:, 2, :][inv.ravel()]
+    ar, cr = np.radians(a), np.radians(c)
+    sa = np.sin(ar)
+    return np.column_stack([sa * np.sin(cr), sa * np.cos(cr), np.cos(ar)])
 
 
 def _fractions(count: np.ndarray, ends: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -103,15 +105,24 @@ def sample_moves(parsed: ParsedGcode, geometry: MachineGeometry, moves: np.ndarr
     length, turn = length[moves], turn[moves]
     count = np.maximum(1, np.ceil(np.maximum(length / spacing, turn / angle_step))).astype(int)
     owner, s = _fractions(count, ends)
-    m = moves[owner]
-    j = parsed.start[m] + (parsed.end[m] - parsed.start[m]) * s[:, None]
-    p = inverse(j[:, :3], j[:, 3], j[:, 4], geometry)
+    start, end = parsed.start[moves], parsed.end[moves]
+    # fixed angles make the inverse affine: map the move ends once and interpolate
+    p0 = inverse(start[:, :3], start[:, 3], start[:, 4], geometry)
+    p1 = inverse(end[:, :3], end[:, 3], end[:, 4], geometry)
+    p = p0[owner] + (p1 - p0)[owner] * s[:, None]
+    u = nozzle_axes(start[:, 3], start[:, 4])[owner]
+    turning = np.flatnonzero(turn[owner] > 0)
+    if len(turning):
+        o = owner[turning]
+        j = start[o] + (end[o] - start[o]) * s[turning, None]
+        p[turning] = inverse(j[:, :3], j[:, 3], j[:, 4], geometry)
+        u[turning] = nozzle_axes(j[:, 3], j[:, 4])
     safe_len = np.where(length > 0, length, math.inf)
     h = np.maximum(parsed.e[moves], 0.0) * bead_area / safe_len
     if h_range is not None:
         h = np.where(h > 0, np.clip(h, *h_range), 0.0)
-    return Samples(p, nozzle_axes(j[:, 3], j[:, 4]), h[owner], m, parsed.layer_seq[m],
-                   parsed.subpart[m], parsed.layer[m])
+    m = moves[owner]
+    return Samples(p, u, h[owner], m, parsed.layer_seq[m], parsed.subpart[m], parsed.layer[m])
 
 
 def extruding_moves(parsed: ParsedGcode) -> np.ndarray:

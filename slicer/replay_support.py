@@ -70,16 +70,17 @@ def strict_support(s: Samples, layer_height: float, line_width: float,
     tan = math.tan(math.radians(OVERHANG_DEG))
     r = math.hypot(reach, reach * tan + slack) + layer_height
     tree = tree or cKDTree(s.p)
-    k = min(NEIGHBOURS, len(s))
-    for chunk in np.array_split(np.arange(len(s)), max(1, len(s) // 100_000)):
-        _, idx = tree.query(s.p[chunk] - s.u[chunk] * layer_height, k=k,
+    todo = np.flatnonzero(~ok)
+    for k in (1, min(NEIGHBOURS, len(s))):  # the nearest candidate settles most samples
+        _, idx = tree.query(s.p[todo] - s.u[todo] * layer_height, k=k,
                             distance_upper_bound=r, workers=-1)
-        idx = idx.reshape(len(chunk), k)
+        idx = idx.reshape(len(todo), k)
         valid = idx < len(s)
         below = np.where(valid, idx, 0)
-        top = np.repeat(chunk[:, None], k, axis=1)
+        top = np.repeat(todo[:, None], k, axis=1)
         hit = valid & _check(s, top.ravel(), below.ravel(), dmax, slack).reshape(valid.shape)
-        ok[chunk] |= hit.any(axis=1)
+        ok[todo] = hit.any(axis=1)
+        todo = todo[~ok[todo]]
     return ok
 
 
