@@ -29,6 +29,9 @@ class Samples:
         Nozzle axis (machine +Z) in the platform frame, unit.
     h : (n,) float
         Local bead height from the extruded filament (0 for travel), mm.
+    step : (n, 3) float
+        Vector to the next sample on the same move: a sample stands for the bead centreline
+        ``p + τ · step``, ``|τ| ≤ 1/2`` (the chord, on moves that turn the table).
     move : (n,) int
         Index of the move each sample lies on.
     seq, subpart, layer : (n,) int
@@ -38,6 +41,7 @@ class Samples:
     p: np.ndarray
     u: np.ndarray
     h: np.ndarray
+    step: np.ndarray
     move: np.ndarray
     seq: np.ndarray
     subpart: np.ndarray
@@ -48,7 +52,8 @@ class Samples:
 
     def take(self, mask: np.ndarray) -> Samples:
         """The samples where ``mask`` holds."""
-        return Samples(self.p[mask], self.u[mask], self.h[mask], self.move[mask],
+        return Samples(self.p[mask], self.u[mask], self.h[mask], self.step[mask],
+                       self.move[mask],
                        self.seq[mask], self.subpart[mask], self.layer[mask])
 
 
@@ -122,7 +127,9 @@ def sample_moves(parsed: ParsedGcode, geometry: MachineGeometry, moves: np.ndarr
     if h_range is not None:
         h = np.where(h > 0, np.clip(h, *h_range), 0.0)
     m = moves[owner]
-    return Samples(p, u, h[owner], m, parsed.layer_seq[m], parsed.subpart[m], parsed.layer[m])
+    step = ((p1 - p0) / count[:, None])[owner]
+    return Samples(p, u, h[owner], step, m, parsed.layer_seq[m], parsed.subpart[m],
+                   parsed.layer[m])
 
 
 def extruding_moves(parsed: ParsedGcode) -> np.ndarray:

@@ -1,11 +1,13 @@
 """Support of deposited points: earlier material (or the platform) beneath along the nozzle.
 
-Rule (issue 8): a point p with nozzle axis u is *supported* when a point q deposited in an
-earlier layer lies at depth ``d = (p - q)·u`` with ``0 < d ≤ 1.5 · max(t, h)`` (t the nominal
-layer height, h the point's own bead height: wedge layers may be up to 1.5 t thick) and at a
-lateral offset ``≤ d · tan 45° + 0.1 w`` (w the line width), or when the platform (z = 0,
-within its radius) lies within that depth along the axis. The same rule is applied to every
-point; wall points (within 0.75 w of the model surface) are also reported on their own.
+Rule (issue 8): a point p with nozzle axis u is *supported* when a point q of a bead
+centreline deposited in an earlier layer lies at depth ``d = (p - q)·u`` with
+``0 < d ≤ 1.5 · max(t, h)`` (t the nominal layer height, h the point's own bead height: wedge
+layers may be up to 1.5 t thick) and at a lateral offset ``≤ d · tan 45° + 0.1 w`` (w the
+line width), or when the platform (z = 0, within its radius) lies within that depth along the
+axis. Samples stand for their piece of centreline (``Samples.step``), so the spacing of the
+samples along a path adds no offset. The same rule is applied to every point; wall points
+(within 0.75 w of the model surface) are also reported on their own.
 
 A point that fails the rule but lies inside the model away from its surface, with material of
 the previous layer within half the sparse infill spacing (w / density) plus one line width
@@ -36,9 +38,20 @@ def depth_limit(s: Samples, layer_height: float) -> np.ndarray:
 
 def _check(s: Samples, top: np.ndarray, below: np.ndarray, dmax: np.ndarray,
            slack: float) -> np.ndarray:
-    """Which (top, below) pairs put ``below`` in the support cone of ``top``."""
-    rel = s.p[top] - s.p[below]
+    """Which (top, below) pairs put ``below``'s bead in the support cone of ``top``.
+
+    The material of ``below`` is its piece of bead centreline ``q + τ · step`` (|τ| ≤ 1/2);
+    the point of it tested is the one laterally nearest to ``top``'s nozzle axis.
+    """
     u = s.u[top]
+    rel = s.p[top] - s.p[below]
+    step = s.step[below]
+    flat_rel = rel - np.einsum("ij,ij->i", rel, u)[:, None] * u
+    flat_step = step - np.einsum("ij,ij->i", step, u)[:, None] * u
+    den = np.einsum("ij,ij->i", flat_step, flat_step)
+    tau = np.clip(np.einsum("ij,ij->i", flat_rel, flat_step) / np.where(den > 0, den, 1.0),
+                  -0.5, 0.5)
+    rel = rel - tau[:, None] * step
     d = np.einsum("ij,ij->i", rel, u)
     lat = np.linalg.norm(rel - d[:, None] * u, axis=1)
     tan = math.tan(math.radians(OVERHANG_DEG))
