@@ -1,4 +1,7 @@
-"""The sample pipes end to end at 0.2 mm: five-axis passes the replay, planar control fails."""
+"""The sample pipes end to end at 0.2 mm: five-axis passes the replay, planar control fails.
+
+Each (model, planar) is sliced once per session (module fixture ``sliced``).
+"""
 
 from __future__ import annotations
 
@@ -18,24 +21,69 @@ GEO = MachineGeometry()
 SETTINGS = ProcessSettings(layer_height=0.2)
 
 
+STEEP = ((25.0, 0.0, 30.0),)  # one branch 30° above the horizontal: steeper than 45°
+MODELS = {"pipe2": pipe2, "pipe3": pipe3, "steep": lambda: branched_pipe(STEEP)}
+
+
 def _slice(mesh, planar=False, keep_plan=False):
     return slice_model(mesh, SETTINGS, GEO, Printhead.default(), planar=planar,
                        keep_plan=keep_plan)
 
 
 @pytest.fixture(scope="module")
-def five_axis_pipe2():
-    return _slice(pipe2(), keep_plan=True)
+def sliced():
+    """One slice per (model, planar) for the whole module."""
+    cache = {}
+
+    def get(model, planar=False):
+        if (model, planar) not in cache:
+            cache[model, planar] = _slice(MODELS[model](), planar=planar,
+                                          keep_plan=model == "pipe2" and not planar)
+        return cache[model, planar]
+    return get
+
+
+@pytest.fixture(scope="module")
+def five_axis_pipe2(sliced):
+    return sliced("pipe2")
 
 
 @pytest.mark.parametrize("model", ["pipe2", "pipe3"])
-def test_five_axis_pipes_pass_the_replay(model, five_axis_pipe2):
-    res = five_axis_pipe2 if model == "pipe2" else _slice(pipe3())
+def test_five_axis_pipes_pass_the_replay(model, sliced):
+    res = sliced(model)
     rep = res.replay
     assert res.subparts >= 2
     assert rep["inside"] >= 0.99 and rep["coverage"] >= 0.95
     assert rep["supported"] >= 0.99 and rep["collisions"] == 0
     assert rep["wall_supported"] >= 0.995
+
+
+@pytest.mark.xfail(strict=True, reason="planner: the disc top under the tube wall is sparse "
+                   "infill, so the tube's first wall layer (sub-part 0 layer 15) stands on it")
+@pytest.mark.parametrize("model", ["pipe2", "pipe3"])
+def test_five_axis_pipes_have_no_unsupported_wall_layer(model, sliced):
+    assert sliced(model).replay["unsupported_wall_layers"] == []
+
+
+@pytest.mark.parametrize("model", ["pipe2", "pipe3"])
+def test_planar_control_of_the_45_degree_pipes_shows_unsupported_points(model, sliced):
+    rep = sliced(model, planar=True).replay
+    assert rep["supported"] < 1.0 and rep["wall_supported"] < 1.0
+
+
+def test_planar_control_of_a_steeper_branch_fails_both_wall_targets(sliced):
+    rep = sliced("steep", planar=True).replay
+    assert rep["wall_supported"] < 0.995
+    assert len(rep["unsupported_wall_layers"]) > 0
+
+
+@pytest.mark.xfail(strict=True, reason="decomposition: the trunk sub-part keeps the 30° "
+                   "branch's junction overhang (its layers ~116-139 fail the wall rule)")
+def test_five_axis_print_of_a_steeper_branch_meets_both_wall_targets(sliced):
+    rep = sliced("steep").replay
+    assert rep["collisions"] == 0
+    assert rep["wall_supported"] >= 0.995
+    assert not [n for n in rep["unsupported_wall_layers"] if n != "sub-part 0 layer 15"]
 
 
 def test_kinematic_round_trip_of_a_real_plan(five_axis_pipe2):
@@ -58,11 +106,3 @@ def test_kinematic_round_trip_of_a_real_plan(five_axis_pipe2):
     from scipy.spatial import cKDTree
     d, _ = cKDTree(back).query(stl)
     assert d.max() < 0.01
-
-
-def test_planar_control_with_shallow_branch_is_caught():
-    mesh = branched_pipe(((25.0, 0.0, 30.0),))
-    rep = _slice(mesh, planar=True).replay
-    assert rep["supported"] < 0.99 or rep["wall_supported"] < 0.995
-    assert rep["wall_supported"] < 0.995
-    assert len(rep["unsupported_wall_layers"]) > 0
