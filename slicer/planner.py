@@ -41,7 +41,7 @@ from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 from slicer.skeleton import SkeletonCurve, line_curve, skeleton_curve
 from slicer.toolpaths import FillSpec, Path2D, layer_paths, shell
-from slicer.zones import solid_zones
+from slicer.zones import solid_zones, under_walls
 
 __all__ = ["SlicingError", "plan_planar", "plan_print"]
 
@@ -250,6 +250,13 @@ def _child_base(index: int, mesh: trimesh.Trimesh, point: np.ndarray, normal: np
     return ChildBase(index, np.asarray(point, dtype=float), frame, sec)
 
 
+def _union(a: BaseGeometry, b: BaseGeometry) -> BaseGeometry:
+    """a ∪ b, without a boolean when either is empty."""
+    if b.is_empty:
+        return a
+    return b if a.is_empty else polygonal(shapely.union(a, b), valid=True)
+
+
 def _build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, float]],
                   settings: ProcessSettings, grounded: bool, bases: list[ChildBase],
                   timer: _Timer) -> list[Layer]:
@@ -257,7 +264,10 @@ def _build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float,
     spec = _spec(settings)
     shells = [shell(lp.region, spec) for lp in layers]
     timer.lap("toolpaths")
-    solids = solid_zones(layers, settings.solid_layers, grounded, [s.domain for s in shells])
+    domains = [s.domain for s in shells]
+    solids = solid_zones(layers, settings.solid_layers, grounded, domains)
+    footings = under_walls(layers, [s.inner for s in shells], domains, settings.line_width)
+    solids = [_union(a, b) for a, b in zip(solids, footings, strict=True)]
     t = settings.layer_height
     depth = settings.interface_layers * t
     izones, owners = interface_zones(layers, bases, depth, t, settings.line_width)

@@ -14,6 +14,13 @@ solid, so the zone is computed as D_i − ∩_j R_j: a layer without a fill doma
 costs nothing, and D_i is an inward offset of R_i, so the booleans never overlay coincident
 edges (GEOS's slowest case); a neighbour equal to R_i vertex by vertex (within
 :data:`TOL.same`, a prismatic stretch) covers D_i and is skipped.
+
+Solid infill under walls (:func:`under_walls`): where layer i+1's wall band (R_{i+1} less its
+inside-the-perimeters area I_{i+1}, mapped into layer i) stands on layer i's fill domain, the
+walls would sit on sparse infill (a tube on a disc: a third of its first wall points
+unsupported). That part of D_i, without slivers narrower than half a width (the walls of a
+sloped or turned stretch, supported within the 45° rule) and grown by one width, is solid:
+(I_i ∩ R'_{i+1} − I'_{i+1}) ∘ w/4 ⊕ w ∩ D_i.
 """
 
 from __future__ import annotations
@@ -55,6 +62,60 @@ def exposed(domain: BaseGeometry, region: BaseGeometry,
     # D − ∩ g = ∪ (D − g): D is an offset of R, so D − g overlays no coincident edges, while
     # D − (D ∩ g) would overlay D with itself
     return polygonal(shapely.union_all(shapely.difference(domain, differ)), valid=True)
+
+
+def _wall_footing(inner: BaseGeometry, domain: BaseGeometry, above: BaseGeometry,
+                  above_inner: BaseGeometry, width: float) -> BaseGeometry:
+    """The part of ``domain`` under the wall band (``above`` − ``above_inner``) of the next
+    layer, both mapped into this layer: slivers thinner than ``width``/2 dropped, grown by
+    ``width``."""
+    if domain.is_empty or above.is_empty:
+        return shapely.Polygon()
+    if shapely.equals_exact(above_inner, inner, tolerance=TOL.same):
+        return shapely.Polygon()  # a prismatic stretch: the walls stand on this layer's walls
+    need = shapely.intersection(inner, above)
+    if not above_inner.is_empty and not need.is_empty:
+        need = shapely.difference(need, above_inner)
+    need = need.buffer(-0.25 * width, quad_segs=4)
+    if need.is_empty:
+        return shapely.Polygon()
+    grown = need.buffer(1.25 * width, quad_segs=4)
+    return polygonal(shapely.intersection(domain, grown), valid=True)
+
+
+def under_walls(layers: Sequence[LayerPlane], inners: Sequence[BaseGeometry],
+                domains: Sequence[BaseGeometry], width: float) -> list[BaseGeometry]:
+    """Per layer, the part of its fill domain to print solid because the next layer's walls
+    stand on it ("solid infill under walls").
+
+    Parameters
+    ----------
+    layers : sequence of LayerPlane
+        One sub-part's layers in order.
+    inners : sequence of shapely geometry
+        Per layer, the region inside its perimeters (:attr:`slicer.toolpaths.Shell.inner`);
+        the wall band is the region less this.
+    domains : sequence of shapely geometry
+        Per layer, where fill goes.
+    width : float
+        Line width w.
+
+    Returns
+    -------
+    list of shapely geometry
+        Zone i ⊂ ``domains[i]``; empty for the last layer (nothing stands on it here).
+    """
+    out = []
+    for i, layer in enumerate(layers):
+        if i + 1 >= len(layers) or domains[i].is_empty:
+            out.append(shapely.Polygon())
+            continue
+        nxt = layers[i + 1]
+        src, dst = (nxt.origin, nxt.frame), (layer.origin, layer.frame)
+        above = map_between(nxt.region, src, dst)
+        above_inner = map_between(inners[i + 1], src, dst)
+        out.append(_wall_footing(inners[i], domains[i], above, above_inner, width))
+    return out
 
 
 def solid_zones(layers: Sequence[LayerPlane], k: int, grounded: bool,

@@ -12,6 +12,7 @@ import shapely.affinity
 
 from kinematics.machine import MachineGeometry
 from kinematics.transform import machine_direction
+from slicer.layers import LayerPlane
 from slicer.planner import SlicingError, plan_planar, plan_print
 from slicer.printhead import Printhead
 from slicer.samples import to_trimesh
@@ -205,3 +206,83 @@ def test_thin_wall_interface_is_solid_under_the_child(pipe2_plan) -> None:
         zone_area, covered = zone_area + zone.area, covered + here
     assert zone_area > 1.0  # the zones are not empty slivers
     assert covered >= 0.95 * zone_area
+
+
+def _bead_cover(paths, band: shapely.Geometry, kinds: set[str] | None = None) -> float:
+    """Share of ``band``'s area under the beads (centre line ⊕ w/2) of ``paths`` (xy)."""
+    lines = [shapely.LineString(p.points[:, :2]) for p in paths
+             if len(p.points) > 1 and (kinds is None or p.kind in kinds)]
+    beads = shapely.union_all(shapely.buffer(lines, 0.5 * S.line_width)) if lines else None
+    return 0.0 if beads is None else beads.intersection(band).area / band.area
+
+
+@pytest.fixture(scope="module")
+def stepped_plan():
+    """A solid cylinder R4 standing on a disc R10 × 2 mm (layers 0–9 are the disc)."""
+    disc = m3.Manifold.cylinder(2.0, 10.0, 10.0, 96)
+    post = m3.Manifold.cylinder(3.0, 4.0, 4.0, 64).translate((0, 0, 2.0))
+    return plan_planar(to_trimesh(disc + post), S, G)
+
+
+def test_solid_infill_under_the_walls_of_the_next_layer(stepped_plan) -> None:
+    """The disc's last layer is solid under the cylinder's wall band (its first layer's walls
+    stand on beads, not on sparse infill); the layer below and the centre keep sparse infill."""
+    (sub,) = stepped_plan.subparts
+    last = round(2.0 / S.layer_height) - 1
+    assert shapely.Point(0, 0).buffer(9.0).within(shapely.MultiPoint(
+        sub.layers[last].paths[0].points[:, :2]).convex_hull)  # layer `last` is the disc
+    band = (shapely.Point(0, 0).buffer(4.0, quad_segs=64)
+            - shapely.Point(0, 0).buffer(4.0 - S.perimeters * S.line_width, quad_segs=64))
+    assert _bead_cover(sub.layers[last].paths, band) >= 0.95
+    assert _bead_cover(sub.layers[last].paths, band, {"solid"}) >= 0.9
+    deeper = sub.layers[last - 1].paths
+    assert _bead_cover(deeper, band) < 0.5
+    core = band & shapely.Point(0, 0).buffer(4.0 - 0.6 * S.line_width)  # inside the skin beads
+    assert _bead_cover(deeper, core, {"solid"}) < 0.01
+    assert any(p.kind == "infill" for p in deeper)
+    centre = shapely.Point(0, 0).buffer(4.0 - (S.perimeters + 3) * S.line_width)
+    inner = [p for p in sub.layers[last].paths
+             if shapely.LineString(p.points[:, :2]).intersects(centre) and len(p.points) > 1]
+    assert inner and {p.kind for p in inner} == {"infill"}
+
+
+def _plane(index: int, origin, normal, region) -> LayerPlane:
+    from slicer.planes2d import plane_frame
+
+    o = np.asarray(origin, float)
+    frame = plane_frame(np.asarray(normal, float))
+    return LayerPlane(index, 0.0, o, frame, region, (o - 0.2 * frame[2], frame[2]), (0.2, 0.2),
+                      0.0)
+
+
+def _footings(lower, upper):
+    from slicer.toolpaths import FillSpec, shell
+    from slicer.zones import under_walls
+
+    spec = FillSpec(S.line_width, S.perimeters, S.infill_density, S.infill_angle)
+    shells = [shell(lp.region, spec) for lp in (lower, upper)]
+    return under_walls([lower, upper], [s.inner for s in shells], [s.domain for s in shells],
+                       S.line_width), shells
+
+
+def test_solid_under_walls_between_turned_planes() -> None:
+    """A ring printed on a plane turned 20° from the disc below it: the disc's footing is its
+    fill domain under the ring's wall band, mapped with the planes' affine map; a shifted copy
+    (a sliver of overhang the 45° rule supports) and the last layer get none."""
+    from slicer.planes2d import map_between
+
+    w, n = S.line_width, np.array([0.0, np.sin(np.radians(20.0)), np.cos(np.radians(20.0))])
+    disc = shapely.Point(0, 0).buffer(10.0, quad_segs=32)
+    ring = shapely.Point(0, 0).buffer(5.0, quad_segs=32) - shapely.Point(0, 0).buffer(3.0)
+    lower, upper = _plane(0, [0, 0, 0], [0, 0, 1], disc), _plane(1, [0, 0, 0.2], n, ring)
+    (foot, last), shells = _footings(lower, upper)
+    assert last.is_empty
+    src, dst = (upper.origin, upper.frame), (lower.origin, lower.frame)
+    band = map_between(ring - shells[1].inner, src, dst) & shells[0].domain
+    assert band.area > 10.0
+    assert (band - foot).area < 0.01 * band.area
+    assert foot.difference(band.buffer(1.5 * w)).area < 1e-6
+    assert foot.area < band.buffer(1.5 * w).area
+    shifted = _plane(1, [0, 0, 0.2], [0, 0, 1], shapely.affinity.translate(disc, 0.05))
+    (foot, _), _ = _footings(lower, shifted)
+    assert foot.is_empty
