@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path as FsPath
 
@@ -23,7 +23,7 @@ from kinematics.linearize import linearize_move
 from kinematics.machine import MachineGeometry
 from kinematics.transform import forward, inverse, table_rotation
 from slicer.estimate import Estimate, MotionLimits, estimate_program
-from slicer.gcode_program import AC_DECIMALS, XYZ_DECIMALS, Program
+from slicer.gcode_program import AC_DECIMALS, XYZ_DECIMALS, MoveWords, Program
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
@@ -61,6 +61,17 @@ class GcodeResult:
     lines: list[str]
     estimate: Estimate
     transitions: list[dict[str, object]]
+    header: int = 0
+    program: Program | None = None
+
+    def words(self) -> Iterator[str | MoveWords]:
+        """The file as raw lines and numeric move blocks (for
+        :func:`slicer.gcode_reader.parse_words`)."""
+        if self.program is None:
+            yield from self.lines
+            return
+        yield from self.lines[:self.header]
+        yield from self.program.words()
 
 
 def filament_area(settings: ProcessSettings) -> float:
@@ -290,8 +301,9 @@ def generate(plan: PrintPlan, settings: ProcessSettings,
     limits = MotionLimits.from_settings(settings)
     estimate = estimate_program(prog.blocks(), limits, filament_area(settings), PLA_DENSITY)
     lines = header_lines(settings, machine, plan.placement, estimate)
+    header = len(lines)
     lines.extend(prog.lines())
-    return GcodeResult(lines, estimate, transitions)
+    return GcodeResult(lines, estimate, transitions, header, prog)
 
 
 def gcode_lines(plan: PrintPlan, settings: ProcessSettings,

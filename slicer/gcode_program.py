@@ -84,6 +84,19 @@ class Program:
             else:
                 yield from _format_block(item, prev)
 
+    def words(self) -> Iterator[str | MoveWords]:
+        """What :meth:`lines` writes, with move lines as arrays: raw lines, and per block the
+        printed values, written-word mask and G1 flag of the rows that become a line (a row
+        with no word to write is not written)."""
+        prev = np.full(7, np.nan)
+        for item in self.items:
+            if isinstance(item, str):
+                yield item
+            else:
+                vals, mask, g1 = _block_words(item, prev)
+                kept = mask.any(axis=1)
+                yield vals[kept], mask[kept], g1[kept]
+
 
 def _rounded(block: np.ndarray) -> np.ndarray:
     out = np.empty((len(block), 6))
@@ -96,19 +109,30 @@ def _rounded(block: np.ndarray) -> np.ndarray:
 _WORDS = ("X%.3f", "Y%.3f", "Z%.3f", "A%.4f", "C%.4f", "E%.5f", "F%.0f")
 
 
-def _format_block(block: np.ndarray, prev: np.ndarray) -> list[str]:
-    """Format rows, writing only axes whose printed value changes; updates ``prev``.
+MoveWords = tuple[np.ndarray, np.ndarray, np.ndarray]
 
-    Rows are grouped by which words they carry, and each group is formatted with one
-    ``%`` template: no per-word Python work.
-    """
+
+def _block_words(block: np.ndarray, prev: np.ndarray) -> MoveWords:
+    """Printed values (k, 7: X Y Z A C E F), which words are written (k, 7) and G1 (k,) of
+    a block's rows; updates ``prev``."""
     r = _rounded(block)
     before = np.vstack([prev[None, :6], r[:-1]])
     changed = ~(r == before) & np.isfinite(r)  # NaN before: written; NaN now: never
     e = np.round(block[:, E], E_DECIMALS)
     vals = np.column_stack([r[:, :5], e, r[:, 5]])
     mask = np.column_stack([changed[:, :5], e != 0.0, changed[:, 5]])
-    code = mask.astype(np.int64) @ (1 << np.arange(7)) + 128 * (block[:, G] != 0)
+    prev[:6] = r[-1]
+    return vals, mask, block[:, G] != 0
+
+
+def _format_block(block: np.ndarray, prev: np.ndarray) -> list[str]:
+    """Format rows, writing only axes whose printed value changes; updates ``prev``.
+
+    Rows are grouped by which words they carry, and each group is formatted with one
+    ``%`` template: no per-word Python work.
+    """
+    vals, mask, g1 = _block_words(block, prev)
+    code = mask.astype(np.int64) @ (1 << np.arange(7)) + 128 * g1
     out = np.empty(len(block), dtype=object)
     for c in np.unique(code):
         idx = np.flatnonzero(code == c)
@@ -117,5 +141,4 @@ def _format_block(block: np.ndarray, prev: np.ndarray) -> list[str]:
             continue
         fmt = ("G1 " if c & 128 else "G0 ") + " ".join(_WORDS[k] for k in cols)
         out[idx] = [fmt % tuple(row) for row in vals[np.ix_(idx, cols)].tolist()]
-    prev[:6] = r[-1]
     return [line for line in out.tolist() if line is not None]

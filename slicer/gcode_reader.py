@@ -95,6 +95,25 @@ class _State:
         self.parents: dict[int, int | None] = {}
         self.interfaces: list[dict] = []
         self.transitions: list[dict] = []
+        self.blocks: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []  # flushed rows
+        self.flushed = 0
+
+    def n_moves(self) -> int:
+        """Rows so far (moves and homings)."""
+        return self.flushed + len(self.meta)
+
+    def flush(self) -> None:
+        """Move the pending list rows into an array block."""
+        if self.meta:
+            self.add_block(np.asarray(self.vals, dtype=float).reshape(-1, 6),
+                           np.asarray(self.home, dtype=bool),
+                           np.asarray(self.meta, dtype=float).reshape(-1, 7))
+            self.vals, self.home, self.meta = [], [], []
+
+    def add_block(self, vals: np.ndarray, home: np.ndarray, meta: np.ndarray) -> None:
+        """Append rows as arrays (after :meth:`flush`)."""
+        self.blocks.append((vals, home, meta))
+        self.flushed += len(meta)
 
 
 _COLUMN = {"X": 0, "Y": 1, "Z": 2, "A": 3, "C": 4, "F": 5, "E": 6}
@@ -168,7 +187,7 @@ def _marker(st: _State, name: str, payload: str, n: int) -> None:
         if not isinstance(data, dict):
             raise GcodeFormatError(f"line {n}: ;HOSTD_{name}: expected a JSON object")
     try:
-        _apply_marker(st, name, data, len(st.meta))
+        _apply_marker(st, name, data, st.n_moves())
     except (KeyError, TypeError, ValueError) as exc:
         raise GcodeFormatError(f"line {n}: ;HOSTD_{name}: missing or bad key {exc}") from None
 
@@ -204,32 +223,75 @@ def _fill(vals: np.ndarray, home: np.ndarray) -> np.ndarray:
     return padded[idx, np.arange(vals.shape[1])]
 
 
+def _line(st: _State, raw: str, n: int) -> None:
+    text = raw.strip()
+    if not text:
+        return
+    if text[0] == ";":
+        m = _MARKER.match(text)
+        if m:
+            _marker(st, m.group(1), m.group(2).strip(), n)
+        return
+    body = text.split(";", 1)[0].strip()
+    if body:
+        _command(st, body, n)
+
+
 def parse_lines(lines: Iterable[str]) -> ParsedGcode:
     """Parse G-code lines (with or without newlines)."""
     st = _State()
     for n, raw in enumerate(lines, start=1):
-        text = raw.strip()
-        if not text:
-            continue
-        if text[0] == ";":
-            m = _MARKER.match(text)
-            if m:
-                _marker(st, m.group(1), m.group(2).strip(), n)
-            continue
-        body = text.split(";", 1)[0].strip()
-        if body:
-            _command(st, body, n)
+        _line(st, raw, n)
+    return _assemble(st)
+
+
+def _move_rows(st: _State, vals: np.ndarray, mask: np.ndarray, g1: np.ndarray, n: int) -> None:
+    """Append k move lines given as printed values (k, 7: X Y Z A C E F), written-word mask
+    and G1 flag, numbered from ``n + 1``: what :func:`_move` makes of their text."""
+    k = len(vals)
+    if k == 0:
+        return
+    row = np.where(mask[:, [0, 1, 2, 3, 4, 6]], vals[:, [0, 1, 2, 3, 4, 6]], np.nan)
+    row[:, 5] /= 60.0
+    e = np.where(mask[:, 5], vals[:, 5], 0.0)
+    if not st.rel_e:
+        given = np.flatnonzero(mask[:, 5])
+        absolute = vals[given, 5]
+        e[given] = absolute - np.r_[st.e_abs, absolute[:-1]]
+        if len(given):
+            st.e_abs = float(absolute[-1])
+    meta = np.column_stack([e, g1, np.arange(n + 1, n + k + 1), np.full(k, st.sub),
+                            np.full(k, st.lay), np.full(k, st.seq), np.full(k, st.trans)])
+    st.flush()
+    st.add_block(row, np.zeros(k, dtype=bool), meta.astype(float))
+
+
+def parse_words(items: Iterable[str | tuple[np.ndarray, np.ndarray, np.ndarray]]
+                ) -> ParsedGcode:
+    """Parse a file given as raw lines and blocks of move lines already as numbers
+    (:meth:`slicer.gcode_program.Program.words`): the same result as :func:`parse_lines` of
+    its text, without formatting and re-reading the moves."""
+    st = _State()
+    n = 0
+    for item in items:
+        if isinstance(item, str):
+            n += 1
+            _line(st, item, n)
+        else:
+            _move_rows(st, *item, n)
+            n += len(item[0])
     return _assemble(st)
 
 
 def _assemble(st: _State) -> ParsedGcode:
-    vals = np.asarray(st.vals, dtype=float).reshape(-1, 6)
-    home = np.asarray(st.home, dtype=bool)
+    st.flush()
+    vals = np.concatenate([b[0] for b in st.blocks] or [np.zeros((0, 6))])
+    home = np.concatenate([b[1] for b in st.blocks] or [np.zeros(0, dtype=bool)])
     filled = _fill(vals, home)
     keep = ~home
     end = filled[keep, :5]
     before = np.vstack([np.full((1, 5), np.nan), filled[:-1, :5]])[keep]
-    meta = np.asarray(st.meta, dtype=float).reshape(-1, 7)[keep]
+    meta = np.concatenate([b[2] for b in st.blocks] or [np.zeros((0, 7))])[keep]
     kept_before = np.concatenate([[0], np.cumsum(keep)])
     for t in st.transitions:
         t["first"] = int(kept_before[t["first"]])

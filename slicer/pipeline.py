@@ -16,7 +16,7 @@ import trimesh
 
 from kinematics.machine import MachineGeometry
 from slicer.gcode import MachineSetup, generate
-from slicer.gcode_reader import parse_lines
+from slicer.gcode_reader import parse_words
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.replay import replay_check
@@ -149,7 +149,7 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
     report: dict[str, object] = {}
     if check:
         t1 = time.perf_counter()
-        parsed = parse_lines(res.lines)
+        parsed = parse_words(res.words())
         timings["read"] = time.perf_counter() - t1
         t1 = time.perf_counter()
         rep = replay_check(parsed, mesh, head, platform_radius, placed=True)

@@ -13,6 +13,7 @@ the highest tip plus the head height can matter, which is usually none.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,8 +127,14 @@ def _group_hits(tips: Samples, sel: np.ndarray, beads: np.ndarray, bead_move: np
     risky = (end > 0) & (hz_t + part.bottom < top[np.maximum(end, 1) - 1])
     out_t, out_o = [np.zeros(0, dtype=int)], [np.zeros(0, dtype=int)]
     frame = _frame(u)
-    for seq in np.unique(tips.seq[sel[risky]]):
-        batch = risky & (tips.seq[sel] == seq)
+    idx = np.flatnonzero(risky)
+    if len(idx) == 0:
+        return out_t[0], out_o[0]
+    idx = idx[np.argsort(tips.seq[sel[idx]], kind="stable")]
+    seqs = tips.seq[sel[idx]]
+    cuts = np.flatnonzero(np.r_[True, seqs[1:] != seqs[:-1], True])
+    for lo, hi in itertools.pairwise(cuts):
+        batch = idx[lo:hi]
         group = sel[batch]
         ht = hz_t[batch]
         n = int(end[batch].max())
@@ -175,11 +182,15 @@ def _material_hits(tips: Samples, deposits: Samples, part: HeadPart, pitch: floa
                    ) -> list[tuple[int, int]]:
     beads = deposits.p - deposits.u * (deposits.h[:, None] / 2.0)
     reps = voxel_representatives(beads, deposits.move, pitch)
+    rep_beads, rep_move = beads[reps], deposits.move[reps]
     group = axis_groups(tips.u)
+    order = np.argsort(group, kind="stable")
+    cuts = np.flatnonzero(np.r_[True, group[order][1:] != group[order][:-1], True])
     hits: list[tuple[int, int]] = []
-    for g in np.unique(group):
-        ti, oi = _group_hits(tips, np.flatnonzero(group == g), beads[reps],
-                             deposits.move[reps], part)
+    if len(tips) == 0:
+        return hits
+    for lo, hi in itertools.pairwise(cuts):
+        ti, oi = _group_hits(tips, order[lo:hi], rep_beads, rep_move, part)
         hits.extend(zip(ti.tolist(), reps[oi].tolist(), strict=True))
     return hits
 

@@ -13,7 +13,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from kinematics.machine import MachineGeometry
-from kinematics.transform import inverse
 from slicer.gcode_reader import GcodeFormatError, ParsedGcode
 
 
@@ -81,6 +80,23 @@ def nozzle_axes(a: np.ndarray, c: np.ndarray) -> np.ndarray:
     ar, cr = np.radians(a), np.radians(c)
     sa = np.sin(ar)
     return np.column_stack([sa * np.sin(cr), sa * np.cos(cr), np.cos(ar)])
+
+
+def inverse(m: np.ndarray, a: np.ndarray, c: np.ndarray, geometry: MachineGeometry
+            ) -> np.ndarray:
+    """Platform-frame points under machine positions ``m`` (n, 3) at angles A, C (degrees).
+
+    :func:`kinematics.transform.inverse` in closed form, ``p = Rz(-C) (Rx(-A) (m - q) + q -
+    t)``, without building rotation matrices.
+    """
+    ar, cr = np.radians(a), np.radians(c)
+    sa, ca, sc, cc = np.sin(ar), np.cos(ar), np.sin(cr), np.cos(cr)
+    q, t = np.asarray(geometry.q, dtype=float), np.asarray(geometry.t, dtype=float)
+    v = m - q
+    x = v[:, 0] + (q[0] - t[0])
+    y = ca * v[:, 1] + sa * v[:, 2] + (q[1] - t[1])
+    z = ca * v[:, 2] - sa * v[:, 1] + (q[2] - t[2])
+    return np.column_stack([cc * x + sc * y, cc * y - sc * x, z])
 
 
 def _fractions(count: np.ndarray, ends: bool) -> tuple[np.ndarray, np.ndarray]:

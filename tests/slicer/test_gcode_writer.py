@@ -12,7 +12,7 @@ from handmade_plans import H, W, box_plan, two_part_plan
 from kinematics.machine import MachineGeometry
 from kinematics.transform import forward, inverse
 from slicer.gcode import MachineSetup, generate, path_extrusion
-from slicer.gcode_reader import parse_lines
+from slicer.gcode_reader import parse_lines, parse_words
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
 from slicer.replay import part_frame_path
 from slicer.settings import ProcessSettings
@@ -175,3 +175,21 @@ def test_start_and_end_gcode_with_placeholders():
     assert "M104 S210.0" in lines
     end_z = next(ln for ln in lines if ln.startswith("G0 Z") and ln.endswith("F3000"))
     assert float(end_z.split()[1][1:]) > 60.0
+
+
+def _same_parse(a, b) -> None:
+    for f in ("start", "end", "e", "feed", "g", "line", "subpart", "layer", "layer_seq",
+              "transition"):
+        x, y = getattr(a, f), getattr(b, f)
+        assert x.shape == y.shape, f
+        np.testing.assert_allclose(x, y, rtol=0, atol=1e-12, err_msg=f)
+    assert a.headers == b.headers and a.parents == b.parents
+    assert a.interfaces == b.interfaces and a.transitions == b.transitions
+
+
+@pytest.mark.parametrize("start", ["", "G28\nG1 Z5 F600\n", "M82\nG92 E0\nG1 E2 F300\n"])
+def test_numeric_moves_parse_as_their_text(start):
+    s = ProcessSettings(start_gcode=start)
+    plan, _ = _clean_two_part()
+    res = generate(plan, s, MachineSetup(GEO))
+    _same_parse(parse_lines(res.lines), parse_words(res.words()))

@@ -12,7 +12,7 @@ from kinematics.machine import MachineGeometry
 from slicer.gcode_reader import parse_lines
 from slicer.pipeline import slice_model
 from slicer.printhead import Printhead
-from slicer.replay import part_frame_path
+from slicer.replay import part_frame_path, replay_file
 from slicer.samples import branched_pipe, pipe2, pipe3
 from slicer.settings import ProcessSettings
 
@@ -84,6 +84,20 @@ def test_five_axis_print_of_a_steeper_branch_meets_both_wall_targets(sliced):
     assert rep["collisions"] == 0
     assert rep["wall_supported"] >= 0.995
     assert not [n for n in rep["unsupported_wall_layers"] if n != "sub-part 0 layer 15"]
+
+
+def test_replaying_the_written_text_gives_the_same_figures(five_axis_pipe2, tmp_path):
+    """The pipeline replays the moves in memory; the file alone (headers, placement, STL
+    coordinates) must give the same figures."""
+    res = five_axis_pipe2
+    path = tmp_path / "pipe2.gcode"
+    path.write_text("\n".join(res.lines) + "\n")
+    rep = replay_file(path, pipe2()).to_dict()
+    for key in ("points", "wall_points", "collisions", "unsupported_wall_layers"):
+        assert rep[key] == res.replay[key], key
+    for key in ("inside", "coverage", "shell_coverage", "supported", "bridged",
+                "wall_supported"):
+        assert abs(rep[key] - res.replay[key]) < 5e-4, key
 
 
 def test_kinematic_round_trip_of_a_real_plan(five_axis_pipe2):
