@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: all venv test lint pytest demo bench docs clean
+.PHONY: all venv test lint pytest test-octoprint demo bench docs clean
 
 all: test
 
@@ -22,7 +22,7 @@ lint: $(STAMP)
 pytest: $(STAMP)
 	$(BIN)/pytest -q
 
-test: lint pytest
+test: lint pytest test-octoprint
 
 demo: $(STAMP)
 	$(BIN)/python -m hostd.demo
@@ -35,4 +35,20 @@ bench: $(STAMP)
 	for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(OCTO) build *.egg-info .pytest_cache .ruff_cache
+
+# The link against another project's Marlin emulator (OctoPrint's virtual printer), in a venv
+# of its own so OctoPrint's dependencies never meet ours. os._exit: the virtual printer leaves
+# non-daemon threads behind that would hold the interpreter for minutes after the tests.
+OCTO := .venv-octoprint
+$(OCTO)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(OCTO)
+	$(OCTO)/bin/pip install --quiet "octoprint==1.11.8" "pyserial-asyncio>=0.6,<0.7" \
+		"pytest>=8,<10" "pytest-asyncio>=0.24,<2" "pytest-timeout>=2.3,<3" \
+		"hypothesis>=6.100,<7" "numpy>=2,<3" "pyyaml>=6,<7" "prometheus-client>=0.20,<1"
+	touch $(OCTO)/.installed
+
+test-octoprint: $(OCTO)/.installed
+	PYTHONPATH=. $(OCTO)/bin/python -c 'import os, sys, pytest; \
+		rc = pytest.main(["-q", "-p", "no:cacheprovider", "tests/link/test_link_octoprint.py"]); \
+		sys.stdout.flush(); os._exit(int(rc))'

@@ -29,13 +29,33 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from hostd.demo import synthetic_gcode  # noqa: E402
 
 TARGETS = {"idle_rss_mb": 80.0, "stream_cpu_pct": 10.0, "status_p99_ms": 10.0}
 BAUD = 250000
 READY = "ready (socket"
 SETTLE_S = 2.0  # idle time before the RSS figure
 
+
+
+def synthetic_gcode(subparts: int = 3, layers: int = 6, per_layer: int = 120) -> str:
+    """A sliced-looking file: start script, sub-parts, layers, HOSTD transitions."""
+    out = [';HOSTD_ESTIMATE {"filament_mm": 250.0, "time_s": 900.0}',
+           "G28", "M140 S60", "M104 S210", "M190 S60", "M109 S210", "G90", "M83", "G92 E0"]
+    for k in range(subparts):
+        if k:
+            a, c = 35.0, 120.0 * k
+            out += [f';HOSTD_TRANSITION {{"from": 0, "to": {k}, "a": {a}, "c": {c}, '
+                    '"x": 250.0, "y": 250.0, "z": 140.0}',
+                    "G0 Z140 F3000", f"G0 A{a:g} C{c:g} F3000", "G0 X250 Y250 F6000",
+                    ";HOSTD_TRANSITION_END"]
+        out.append(f';HOSTD_SUBPART {{"index": {k}, "parent": {0 if k else "null"}}}')
+        for layer in range(layers):
+            out.append(f';HOSTD_LAYER {{"subpart": {k}, "index": {layer}}}')
+            z = (140.0 if k else 100.0) + 0.2 * (layer + 1)
+            for i in range(per_layer):
+                out.append(f"G1 X{245 + (i % 10):g} Y{245 + (i % 9):g} Z{z:.1f} E0.04 F1800")
+    out += ["M104 S0", "M140 S0", "M107", "G0 Z300 F3000", "G0 A0 C0 F3000", "M84"]
+    return "\n".join(out) + "\n"
 
 def rss_mb(pid: int) -> float:
     for line in Path(f"/proc/{pid}/status").read_text().splitlines():

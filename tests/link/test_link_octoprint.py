@@ -111,7 +111,7 @@ async def test_stream_against_octoprint_virtual_printer(
     link = SerialLink(LinkSettings(ok_timeout=2.0, nudges=3, handshake_timeout=2.0,
                                    rx_buffer_bytes=rx),
                       opener=opener_for({"simulateReset": False, **overrides}))
-    lines = ["G90", *(f"G1 X{i % 50} Y{i % 30} F6000" for i in range(400)), "M400"]
+    lines = ["G90", *(f"G1 X{i % 10} Y{i % 6} F12000" for i in range(150)), "M400"]
     async with asyncio.timeout(120):
         await link.connect()
         acked = [i async for i in link.stream(lines)]
@@ -120,8 +120,8 @@ async def test_stream_against_octoprint_virtual_printer(
         status = link.status()
         await link.close()
     assert acked == list(range(len(lines)))
-    assert isinstance(pos, Position) and pos.axes["X"] == pytest.approx(399 % 50)
-    assert pos.axes["Y"] == pytest.approx(399 % 30)
+    assert isinstance(pos, Position) and pos.axes["X"] == pytest.approx(149 % 10)
+    assert pos.axes["Y"] == pytest.approx(149 % 6)
     assert isinstance(temps, Temperatures) and "T" in temps.heaters
     assert status["firmware_name"]
     if overrides.get("resend_ratio"):

@@ -58,8 +58,6 @@ def test_five_axis_pipes_pass_the_replay(model, sliced):
     assert rep["wall_supported"] >= 0.995
 
 
-@pytest.mark.xfail(strict=True, reason="planner: the disc top under the tube wall is sparse "
-                   "infill, so the tube's first wall layer (sub-part 0 layer 15) stands on it")
 @pytest.mark.parametrize("model", ["pipe2", "pipe3"])
 def test_five_axis_pipes_have_no_unsupported_wall_layer(model, sliced):
     assert sliced(model).replay["unsupported_wall_layers"] == []
