@@ -22,7 +22,7 @@ lint: $(STAMP)
 pytest: $(STAMP)
 	$(BIN)/pytest -q
 
-test: lint pytest test-octoprint
+test: lint test-octoprint pytest
 
 demo: $(STAMP)
 	$(BIN)/python -m hostd.demo
