@@ -10,9 +10,8 @@ run mostly measures the neighbours). The skeleton cache is cleared before every 
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import time
-from pathlib import Path
+
+from harness import MODELS, best_of, check_models
 
 from kinematics.machine import MachineGeometry
 from slicer import planner
@@ -21,34 +20,14 @@ from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 
-
-def _decompose_bench():
-    """bench/decompose.py as a module: the same models and the same 50k-face pipe."""
-    spec = importlib.util.spec_from_file_location(
-        "bench_decompose", Path(__file__).resolve().parent / "decompose.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-MODELS = _decompose_bench().MODELS
-
 STAGES = ("sections", "skeleton", "layers", "zones", "toolpaths", "obstacles")
 
 
-def best_of(dec: Decomposition, repeat: int) -> tuple[PrintPlan, float, float]:
-    """The fastest of ``repeat`` plans: (plan, wall s, CPU s)."""
-    head, machine, settings = Printhead.default(), MachineGeometry(), ProcessSettings()
-    best = None
-    for _ in range(repeat):
-        planner._CURVES.clear()
-        planner._SOLIDS.clear()
-        wall, cpu = time.perf_counter(), time.process_time()
-        plan = planner.plan_print(dec, settings, machine, head)
-        run = (plan, time.perf_counter() - wall, time.process_time() - cpu)
-        best = run if best is None or run[1] < best[1] else best
-    assert best is not None
-    return best
+def plan_once(dec: Decomposition) -> PrintPlan:
+    """One plan from cold caches (the skeleton and solid caches are cleared first)."""
+    planner._CURVES.clear()
+    planner._SOLIDS.clear()
+    return planner.plan_print(dec, ProcessSettings(), MachineGeometry(), Printhead.default())
 
 
 def main() -> None:
@@ -56,16 +35,13 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3, help="runs per model (best reported)")
     parser.add_argument("models", nargs="*", help=f"any of {', '.join(MODELS)} (default: all)")
     args = parser.parse_args()
-    unknown = set(args.models) - set(MODELS)
-    if unknown:
-        parser.error(f"unknown model(s) {', '.join(sorted(unknown))}; choose from "
-                     f"{', '.join(MODELS)}")
+    names = check_models(parser, args.models)
     print(f"{'model':>10} {'faces':>7} {'parts':>5} {'layers':>6} {'paths':>6} "
           + " ".join(f"{k:>9}" for k in STAGES) + f" {'wall s':>7} {'cpu s':>6}")
-    for name in args.models or MODELS:
+    for name in names:
         mesh = MODELS[name]()
         dec = decompose(mesh, DecomposeSettings(), MachineGeometry(), Printhead.default())
-        plan, wall, cpu = best_of(dec, args.repeat)
+        plan, wall, cpu = best_of(lambda d=dec: plan_once(d), args.repeat)
         layers = [la for sp in plan.subparts for la in sp.layers]
         paths = sum(len(la.paths) for la in layers)
         stages = " ".join(f"{plan.timings.get(k, 0.0):>9.3f}" for k in STAGES)

@@ -11,12 +11,11 @@ the CPU time is printed beside it.
 from __future__ import annotations
 
 import argparse
-import time
 
 import trimesh
+from harness import MODELS, best_of, check_models
 
 from kinematics.machine import MachineGeometry
-from slicer import samples
 from slicer.pipeline import SliceResult, slice_model
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
@@ -24,24 +23,10 @@ from slicer.settings import ProcessSettings
 STAGES = ("load", "plan", "gcode", "read", "replay")
 
 
-def pipe3_50k(target: int = 50_000) -> trimesh.Trimesh:
-    """pipe3 with finer circles, split 1 → 4 until it has about ``target`` faces."""
-    mesh = samples.pipe3(segments=96)
-    while len(mesh.faces) * 4 <= target * 1.5:
-        mesh = mesh.subdivide()
-    return mesh
-
-
-MODELS = {"cylinder": samples.cylinder, "pipe2": samples.pipe2, "pipe3": samples.pipe3,
-          "pipe3-50k": pipe3_50k}
-
-
 def run(mesh: trimesh.Trimesh, height: float, planar: bool) -> tuple[SliceResult, float, float]:
     """One slice: (result, wall s, CPU s)."""
-    wall, cpu = time.perf_counter(), time.process_time()
-    res = slice_model(mesh, ProcessSettings(layer_height=height), MachineGeometry(),
-                      Printhead.default(), planar=planar)
-    return res, time.perf_counter() - wall, time.process_time() - cpu
+    return best_of(lambda: slice_model(mesh, ProcessSettings(layer_height=height),
+                                       MachineGeometry(), Printhead.default(), planar=planar), 1)
 
 
 def _row(name: str, faces: int, h: float, kind: str, res: SliceResult, wall: float,
@@ -61,9 +46,7 @@ def main() -> None:
     parser.add_argument("--models", nargs="*", default=[], help=f"any of {', '.join(MODELS)} "
                         "(default: pipe2 pipe3 at every height, pipe3-50k at 0.2)")
     args = parser.parse_args()
-    unknown = set(args.models) - set(MODELS)
-    if unknown:
-        parser.error(f"unknown model(s) {', '.join(sorted(unknown))}")
+    check_models(parser, args.models)
     jobs = ([(m, h) for m in args.models for h in args.heights] if args.models else
             [(m, h) for m in ("pipe2", "pipe3") for h in args.heights] + [("pipe3-50k", 0.2)])
     print(f"{'model':>10} {'faces':>6} {'h':>4} {'kind':>6} {'sp':>3} "
