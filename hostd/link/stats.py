@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
+
+from hostd.stats import RTT_BOUNDS, Buckets
 
 
 @dataclass
@@ -33,16 +35,19 @@ class RoundTrip:
     last: float = 0.0
     total: float = 0.0
     largest: float = 0.0
+    buckets: Buckets = field(default_factory=lambda: Buckets(RTT_BOUNDS))
 
     def add(self, seconds: float) -> None:
         """Record one round trip."""
+        self.buckets.observe(seconds)
         self.count += 1
         self.last = seconds
         self.total += seconds
         self.largest = max(self.largest, seconds)
 
-    def as_dict(self) -> dict[str, float | int]:
-        """Milliseconds, for the status snapshot."""
+    def as_dict(self) -> dict[str, object]:
+        """Milliseconds, plus the cumulative histogram in seconds, for the status snapshot."""
         mean = self.total / self.count if self.count else 0.0
         return {"count": self.count, "last_ms": round(self.last * 1e3, 3),
-                "mean_ms": round(mean * 1e3, 3), "max_ms": round(self.largest * 1e3, 3)}
+                "mean_ms": round(mean * 1e3, 3), "max_ms": round(self.largest * 1e3, 3),
+                "histogram": self.buckets.snapshot()}

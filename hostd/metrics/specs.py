@@ -100,7 +100,7 @@ SPECS: tuple[Spec, ...] = (
     Spec("hostd_serial_window_bytes", "gauge", "Bytes the send window may hold in flight.",
          "link.window_bytes"),
     Spec("hostd_serial_ok_roundtrip_seconds", "histogram", "Time from a line's send to its ok.",
-         "link.rtt"),
+         "link.ok_rtt.histogram"),
     Spec("hostd_temperature_celsius", "gauge", "Measured heater temperature.",
          "link.temperatures", label="heater", field="actual"),
     Spec("hostd_temperature_target_celsius", "gauge", "Heater set point.",

@@ -24,7 +24,7 @@ def full_snapshot() -> dict:
         "link": {"connected": True, "capabilities": {"AUTOREPORT_TEMP": True, "EEPROM": False},
                  "lines_sent": 120, "lines_acked": 118, "lines_resent": 3,
                  "checksum_errors": 2, "timeouts": 1, "reconnects": 0, "window_bytes": 127,
-                 "rtt": rtt.snapshot(),
+                 "ok_rtt": {"histogram": rtt.snapshot()},
                  "temperatures": {"T": {"actual": 209.5, "target": 210.0, "power": 80},
                                   "B": {"actual": 60.1, "target": 60.0, "power": None}}},
         "jobs": {"queue_length": 2, "finished": {"completed": 4, "failed": 1},
