@@ -9,7 +9,8 @@ import io
 import pytest
 from hostd_harness import executed, file_commands
 
-from slicer.samples import branched_pipe, cylinder
+from hostd.printer.program import parse_program
+from slicer.samples import branched_pipe, cylinder, pipe3
 
 pytestmark = pytest.mark.asyncio
 
@@ -35,6 +36,29 @@ async def _print_stl(d, name: str, mesh, budget: float):
     return got, executed(log), sliced[0].read_text()
 
 
+def _extras_before(ran: list[str], cmds: list[str]) -> list[list[str]]:
+    """What the daemon ran besides the file: ``out[i]`` came just before file command i."""
+    out: list[list[str]] = [[] for _ in range(len(cmds) + 1)]
+    i = 0
+    for x in ran:
+        if i < len(cmds) and x == cmds[i]:
+            i += 1
+        else:
+            out[i].append(x)
+    assert i == len(cmds), "the file's commands did not all run, in order"
+    return out
+
+
+def _assert_transactions(ran: list[str], gcode: str) -> int:
+    """Every transition block ran between M400 and M400 + M114; returns their number."""
+    prog = parse_program(gcode)
+    extras = _extras_before(ran, prog.commands)
+    for t in prog.transitions:
+        assert "M400" in extras[t.start], (t, extras[t.start])
+        assert extras[t.end][:2] == ["M400", "M114"], (t, extras[t.end])
+    return len(prog.transitions)
+
+
 async def test_stl_job_is_sliced_and_every_line_runs_once_in_order(daemon_factory):
     d = daemon_factory(process__layer_height=0.3)
     await d.start()
@@ -53,8 +77,20 @@ async def test_branched_stl_runs_each_transition_as_a_transaction(daemon_factory
     got, ran, gcode = await _print_stl(d, "branch.stl", part, 280)
     assert got["state"] == "completed", got
     assert [x for x in ran if x not in ("M400", "M114")] == file_commands(gcode)
-    transitions = gcode.count(";HOSTD_TRANSITION ")
+    transitions = _assert_transactions(ran, gcode)
     assert transitions >= 2  # the approach to the root and the turn to the branch
     assert len(got["checkpoints"]) == transitions
-    assert ran.count("M114") >= transitions  # one readback per transaction
+    assert await d.stop() == 0
+
+
+async def test_three_branched_sample_runs_every_transition_as_a_transaction(daemon_factory):
+    d = daemon_factory(process__layer_height=0.3, process__infill_density=0.1,
+                       process__perimeters=1)
+    await d.start()
+    got, ran, gcode = await _print_stl(d, "pipe3.stl", pipe3(), 400)
+    assert got["state"] == "completed", got
+    transitions = _assert_transactions(ran, gcode)
+    subparts = gcode.count(";HOSTD_SUBPART ")
+    assert subparts == 3 and transitions == subparts  # one turn before every sub-part
+    assert [cp["subpart"] for cp in got["checkpoints"]] == list(range(subparts))
     assert await d.stop() == 0
