@@ -88,14 +88,49 @@ def path_extrusion(path: Path, area: float) -> tuple[np.ndarray, np.ndarray]:
     e : (k - 1,) float
         mm of filament per segment.
     """
-    pts = np.asarray(path.points, dtype=float).reshape(-1, 3)
-    h = np.broadcast_to(np.asarray(path.height, dtype=float), (len(pts),))
-    if path.closed and len(pts) > 2:
-        pts = np.vstack([pts, pts[:1]])
-        h = np.concatenate([h, h[:1]])
-    length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    e = path.width * 0.5 * (h[:-1] + h[1:]) * length * path.flow / area
-    return pts, e
+    ext = Extrusions.of([path], area)
+    return ext.points, ext.e[1:]
+
+
+@dataclass(frozen=True)
+class Extrusions:
+    """Paths as one run of print-order vertices (closed paths return to their start).
+
+    Attributes
+    ----------
+    points : (N, 3) float
+        Vertices of every path, path after path.
+    e : (N,) float
+        mm of filament of the segment ending at each vertex (0 at a path's first vertex).
+    start : (P + 1,) int
+        Path j's vertices are ``start[j]:start[j + 1]``.
+    """
+
+    points: np.ndarray
+    e: np.ndarray
+    start: np.ndarray
+
+    @classmethod
+    def of(cls, paths: Sequence[Path], area: float) -> Extrusions:
+        """``E = w · (h0 + h1)/2 · L · flow / area`` per segment, for all paths at once."""
+        raw = [np.asarray(p.points, dtype=float).reshape(-1, 3) for p in paths]
+        n = np.array([len(r) for r in raw], dtype=np.int64)
+        if not n.sum():
+            return cls(np.zeros((0, 3)), np.zeros(0), np.zeros(len(paths) + 1, dtype=np.int64))
+        h = np.concatenate([np.broadcast_to(np.asarray(p.height, dtype=float), (len(r),))
+                            for p, r in zip(paths, raw, strict=True)])
+        close = np.array([p.closed for p in paths]) & (n > 2)
+        m = n + close
+        start, first = np.r_[0, np.cumsum(m)], np.r_[0, np.cumsum(n)]
+        idx = np.arange(start[-1]) - np.repeat(start[:-1] - first[:-1], m)
+        idx[start[1:][close] - 1] = first[:-1][close]
+        pts, h = np.concatenate(raw)[idx], h[idx]
+        length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        w = np.repeat([p.width for p in paths], m)[1:]
+        flow = np.repeat([p.flow for p in paths], m)[1:]
+        e = np.r_[0.0, w * 0.5 * (h[:-1] + h[1:]) * length * flow / area]
+        e[start[:-1][m > 0]] = 0.0
+        return cls(pts, e, start)
 
 
 class _Writer:
@@ -108,6 +143,10 @@ class _Writer:
         self.retracted = False
         self.primed = True
         self.area = filament_area(settings)
+        layers = [la for sp in plan.subparts for la in sp.layers]
+        self.ext = Extrusions.of([p for la in layers for p in la.paths], self.area)
+        self.poses = _joint_poses(self.ext, layers, machine.geometry)
+        self.next_path = 0
         self.hull = obstacle_hull(_all_points(plan))
         self.rim = platform_rim(machine.platform_radius)
         self.transitions: list[dict[str, object]] = []
@@ -166,22 +205,22 @@ class _Writer:
         if layer.interface_child is not None:
             self.prog.line(";HOSTD_INTERFACE " + _json(
                 {"parent": layer.subpart, "child": int(layer.interface_child)}))
-        for path in layer.paths:
-            pts, e = path_extrusion(path, self.area)
-            if len(pts) < 2:
+        ext, j0 = self.ext, self.next_path
+        self.next_path += len(layer.paths)
+        for j, path in enumerate(layer.paths, start=j0):
+            s, t = int(ext.start[j]), int(ext.start[j + 1])
+            if t - s < 2:
                 continue
             if not _same_angles(self.prog.pose, layer.a, layer.c):
-                self.reorient(layer, pts[0])
-            mach = forward(pts, layer.a, layer.c, self.g)
-            self.travel_to(mach[0])
-            poses = np.column_stack([mach[1:], np.full(len(e), layer.a),
-                                     np.full(len(e), layer.c)])
-            self.prog.moves(poses, e, path.speed, 1)
+                self.reorient(layer, ext.points[s])
+            self.travel_to(self.poses[s, :3])
+            self.prog.moves(self.poses[s + 1:t], ext.e[s + 1:t], path.speed, 1)
 
     # -- sub-parts -------------------------------------------------------------------------
     def subpart(self, sp: SubpartPlan, prev: int | None) -> None:
         first = _first_point(sp)
         if first is None:
+            self.next_path += sum(len(la.paths) for la in sp.layers)
             return
         layer0, point = first
         self.prog.subpart = sp.index
@@ -217,6 +256,16 @@ class _Writer:
         a0, c0 = float(self.prog.pose[3]), float(self.prog.pose[4])
         z = safe_height_z(self.hull, self.rim, a0, c0, 0.0, 0.0, self.g, self.s.safe_height)
         return max(z, float(self.prog.pose[2]))
+
+
+def _joint_poses(ext: Extrusions, layers: Sequence[Layer], geometry: MachineGeometry
+                 ) -> np.ndarray:
+    """Joint pose [X, Y, Z, A, C] of every vertex of ``ext`` at its layer's angles, (N, 5)."""
+    first_path = np.r_[0, np.cumsum([len(la.paths) for la in layers], dtype=np.int64)]
+    per_layer = np.diff(ext.start[first_path])
+    a = np.repeat([la.a for la in layers], per_layer)
+    c = np.repeat([la.c for la in layers], per_layer)
+    return np.column_stack([forward(ext.points, a, c, geometry), a, c])
 
 
 def _json(obj: object) -> str:

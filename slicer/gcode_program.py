@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from slicer.gcode_format import format_moves
+
 # columns of a move row
 X, Y, Z, A, C, E, F, G, SUB = range(9)
 NCOL = 9
@@ -38,6 +40,8 @@ class Program:
     items: list[str | np.ndarray] = field(default_factory=list)
     pose: np.ndarray = field(default_factory=lambda: np.full(5, np.nan))
     subpart: int = -1
+    _table: WordTable | None = field(default=None, init=False, repr=False)
+    _table_items: int = field(default=-1, init=False, repr=False)
 
     def line(self, text: str) -> None:
         """Append raw lines (comments, M-codes); ``text`` may hold several."""
@@ -64,81 +68,118 @@ class Program:
 
     def blocks(self) -> np.ndarray:
         """All move rows in order, (n, 9)."""
-        arrays = [b for b in self.items if isinstance(b, np.ndarray)]
-        return np.concatenate(arrays) if arrays else np.empty((0, NCOL))
+        return self.table().rows
 
-    def start_poses(self) -> np.ndarray:
-        """The pose each move starts from (NaN where unknown), (n, 5)."""
-        rows = self.blocks()
-        start = np.full((len(rows), 5), np.nan)
-        if len(rows):
-            start[1:] = rows[:-1, :5]
-        return start
+    def table(self) -> WordTable:
+        """The printed words of every move row (computed once per set of items)."""
+        if self._table is None or self._table_items != len(self.items):
+            self._table, self._table_items = WordTable.of(self.items), len(self.items)
+        return self._table
 
-    def lines(self) -> Iterator[str]:
+    def lines(self) -> list[str]:
         """The program as G-code lines (no trailing newlines)."""
-        prev = np.full(7, np.nan)  # printed X Y Z A C and feed, last G
-        for item in self.items:
-            if isinstance(item, str):
-                yield item
-            else:
-                yield from _format_block(item, prev)
+        tab = self.table()
+        text = format_moves(*tab.written())
+        out: list[str] = []
+        done = 0
+        for line, k in zip(tab.texts, tab.kept_before(), strict=True):
+            out.extend(text[done:k])
+            out.append(line)
+            done = k
+        out.extend(text[done:])
+        return out
 
     def words(self) -> Iterator[str | MoveWords]:
-        """What :meth:`lines` writes, with move lines as arrays: raw lines, and per block the
-        printed values, written-word mask and G1 flag of the rows that become a line (a row
-        with no word to write is not written)."""
-        prev = np.full(7, np.nan)
-        for item in self.items:
-            if isinstance(item, str):
-                yield item
-            else:
-                vals, mask, g1 = _block_words(item, prev)
-                kept = mask.any(axis=1)
-                yield vals[kept], mask[kept], g1[kept]
-
-
-def _rounded(block: np.ndarray) -> np.ndarray:
-    out = np.empty((len(block), 6))
-    out[:, :3] = np.round(block[:, :3], XYZ_DECIMALS)
-    out[:, 3:5] = np.round(block[:, 3:5], AC_DECIMALS)
-    out[:, 5] = np.round(block[:, F] * 60.0, 0)
-    return out
-
-
-_WORDS = ("X%.3f", "Y%.3f", "Z%.3f", "A%.4f", "C%.4f", "E%.5f", "F%.0f")
+        """What :meth:`lines` writes, with move lines as arrays: raw lines, and per run of
+        moves between them the printed values, written-word mask and G1 flag of the rows that
+        become a line (a row with no word to write is not written)."""
+        tab = self.table()
+        vals, mask, g1 = tab.written()
+        done = 0
+        for line, k in zip(tab.texts, tab.kept_before(), strict=True):
+            if k > done:
+                yield vals[done:k], mask[done:k], g1[done:k]
+            yield line
+            done = k
+        if len(vals) > done:
+            yield vals[done:], mask[done:], g1[done:]
 
 
 MoveWords = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
-def _block_words(block: np.ndarray, prev: np.ndarray) -> MoveWords:
-    """Printed values (k, 7: X Y Z A C E F), which words are written (k, 7) and G1 (k,) of
-    a block's rows; updates ``prev``."""
-    r = _rounded(block)
-    before = np.vstack([prev[None, :6], r[:-1]])
+@dataclass(frozen=True)
+class WordTable:
+    """A program's move rows with what each line prints, for the whole file at once.
+
+    Attributes
+    ----------
+    rows : (n, 9) float
+        Every move row in file order.
+    vals : (n, 7) float
+        Printed values X Y Z A C E F (rounded as written; F in mm/min).
+    mask : (n, 7) bool
+        Which words a row writes (an axis or feed only when its printed value changes, E when
+        not zero).
+    g1 : (n,) bool
+    texts : list of str
+        The raw lines, in order.
+    at : (m,) int
+        Rows before each raw line.
+    """
+
+    rows: np.ndarray
+    vals: np.ndarray
+    mask: np.ndarray
+    g1: np.ndarray
+    texts: list[str]
+    at: np.ndarray
+
+    @classmethod
+    def of(cls, items: list[str | np.ndarray]) -> WordTable:
+        """The table of a program's items (raw lines and (k, 9) move blocks)."""
+        texts, at, arrays, n = [], [], [], 0
+        for item in items:
+            if isinstance(item, str):
+                texts.append(item)
+                at.append(n)
+            else:
+                arrays.append(item)
+                n += len(item)
+        rows = np.concatenate(arrays) if arrays else np.empty((0, NCOL))
+        return cls(rows, *_words(rows), texts, np.asarray(at, dtype=np.int64))
+
+    @property
+    def kept(self) -> np.ndarray:
+        """Rows that become a line (they write at least one word), (n,) bool."""
+        return self.mask.any(axis=1)
+
+    def written(self) -> MoveWords:
+        """vals, mask and g1 of the rows that become a line."""
+        kept = self.kept
+        return self.vals[kept], self.mask[kept], self.g1[kept]
+
+    def kept_before(self) -> list[int]:
+        """Move lines before each raw line."""
+        count = np.r_[0, np.cumsum(self.kept)]
+        return count[self.at].tolist()
+
+
+def _rounded(rows: np.ndarray) -> np.ndarray:
+    out = np.empty((len(rows), 6))
+    out[:, :3] = np.round(rows[:, :3], XYZ_DECIMALS)
+    out[:, 3:5] = np.round(rows[:, 3:5], AC_DECIMALS)
+    out[:, 5] = np.round(rows[:, F] * 60.0, 0)
+    return out
+
+
+def _words(rows: np.ndarray) -> MoveWords:
+    """Printed values (n, 7: X Y Z A C E F), which words are written (n, 7) and G1 (n,) of
+    consecutive move rows from an unknown pose."""
+    r = _rounded(rows)
+    before = np.vstack([np.full((1, 6), np.nan), r[:-1]])
     changed = ~(r == before) & np.isfinite(r)  # NaN before: written; NaN now: never
-    e = np.round(block[:, E], E_DECIMALS)
+    e = np.round(rows[:, E], E_DECIMALS)
     vals = np.column_stack([r[:, :5], e, r[:, 5]])
     mask = np.column_stack([changed[:, :5], e != 0.0, changed[:, 5]])
-    prev[:6] = r[-1]
-    return vals, mask, block[:, G] != 0
-
-
-def _format_block(block: np.ndarray, prev: np.ndarray) -> list[str]:
-    """Format rows, writing only axes whose printed value changes; updates ``prev``.
-
-    Rows are grouped by which words they carry, and each group is formatted with one
-    ``%`` template: no per-word Python work.
-    """
-    vals, mask, g1 = _block_words(block, prev)
-    code = mask.astype(np.int64) @ (1 << np.arange(7)) + 128 * g1
-    out = np.empty(len(block), dtype=object)
-    for c in np.unique(code):
-        idx = np.flatnonzero(code == c)
-        cols = [k for k in range(7) if (c >> k) & 1]
-        if not cols:
-            continue
-        fmt = ("G1 " if c & 128 else "G0 ") + " ".join(_WORDS[k] for k in cols)
-        out[idx] = [fmt % tuple(row) for row in vals[np.ix_(idx, cols)].tolist()]
-    return [line for line in out.tolist() if line is not None]
+    return vals, mask, rows[:, G] != 0
