@@ -12,6 +12,7 @@ from handmade_plans import H, W, box_plan, two_part_plan
 from kinematics.machine import MachineGeometry
 from kinematics.transform import forward, inverse
 from slicer.gcode import MachineSetup, generate, path_extrusion
+from slicer.gcode_format import DECIMALS, format_moves, format_moves_reference
 from slicer.gcode_reader import parse_lines, parse_words
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
 from slicer.replay import part_frame_path
@@ -193,3 +194,25 @@ def test_numeric_moves_parse_as_their_text(start):
     plan, _ = _clean_two_part()
     res = generate(plan, s, MachineSetup(GEO))
     _same_parse(parse_lines(res.lines), parse_words(res.words()))
+
+
+def test_bulk_move_text_is_the_percent_format_of_each_word():
+    rng = np.random.default_rng(7)
+    n = 5000
+    scale = rng.choice([1e-4, 1e-2, 1.0, 10.0, 999.0, 1e5], size=(n, 7))
+    raw = rng.normal(size=(n, 7)) * scale
+    raw[rng.random((n, 7)) < 0.05] = -0.0
+    raw[rng.random((n, 7)) < 0.05] = 0.0
+    vals = np.column_stack([np.round(raw[:, k], d) for k, d in enumerate(DECIMALS)])
+    mask = rng.random((n, 7)) < 0.6
+    g1 = rng.random(n) < 0.5
+    assert format_moves(vals, mask, g1) == format_moves_reference(vals, mask, g1)
+    assert format_moves(vals[:0], mask[:0], g1[:0]) == []
+
+
+def test_written_lines_are_the_reference_text_of_the_moves(two_part):
+    _, res, _ = two_part
+    expected = []
+    for item in res.words():
+        expected += [item] if isinstance(item, str) else format_moves_reference(*item)
+    assert res.lines == expected
