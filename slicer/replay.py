@@ -17,6 +17,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -28,10 +30,13 @@ from slicer.printhead import Printhead
 from slicer.replay_collide import find_collisions
 from slicer.replay_coverage import coverage
 from slicer.replay_geometry import INSIDE_PITCH, ModelIndex
+from slicer.replay_kdtree import point_tree
 from slicer.replay_samples import (
     Samples,
     extruding_moves,
     geometry_from_header,
+    map_moves,
+    move_lengths,
     positioned_moves,
     sample_moves,
 )
@@ -65,6 +70,7 @@ class ReplayReport:
     collision_messages: list[str]
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
+    cpu_timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
@@ -140,7 +146,7 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     ``;HOSTD_KINEMATICS`` values.
     """
     t0 = time.perf_counter()
-    timings: dict[str, float] = {}
+    clock = _Stages()
     geo = geometry_from_header(parsed)
     proc = _process(parsed)
     w, t = proc["line_width"], proc["layer_height"]
@@ -148,53 +154,60 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     radius = platform_radius if platform_radius is not None else float(
         parsed.headers.get("KINEMATICS", {}).get("platform_radius", 150.0))
     bead_area = math.pi * proc["filament_diameter"] ** 2 / 4.0 / w
-    ext = extruding_moves(parsed)
-    s = sample_moves(parsed, geo, ext, 0.5 * w, TIP_ANGLE, bead_area,
-                     h_range=(H_MIN * t, H_MAX * t))
-    timings["sample"] = time.perf_counter() - t0
+    with clock("sample"):
+        lengths = move_lengths(parsed)
+        ext = extruding_moves(parsed, lengths)
+        beads = map_moves(parsed, geo, ext, lengths, bead_area, (H_MIN * t, H_MAX * t))
+        s = sample_moves(parsed, geo, beads, 0.5 * w, TIP_ANGLE)
+    with clock("index"):
+        model = ModelIndex(*_placed_mesh(mesh, np.eye(4) if placed else _placement(parsed)))
+    with clock("wall"):
+        bound = model.nearest_bound(s.p, WALL_SLACK * w)
+        wall = model.within(s.p, WALL_SLACK * w, bound)
+    with clock("inside"):
+        inside_share = _inside_share(model, s.p[::INSIDE_STRIDE], bound[::INSIDE_STRIDE],
+                                     INSIDE_SLACK * w)
+    with clock("support"):
+        tree = point_tree(s.p)
+        ok = strict_support(s, t, w, radius, tree)
+        cand = ~ok & ~wall
+        cand[cand] = _inside_far(model, s.p[cand], WALL_SLACK * w)
+        bridge = bridged(s, cand, t, w, proc["infill_density"])
+    with clock("coverage"):
+        cov, shell_cov = coverage(model, s, w, t, int(proc["perimeters"]),
+                                  proc["infill_density"], tree)
+    with clock("collisions"):
+        moved = map_moves(parsed, geo, positioned_moves(parsed, lengths), lengths, bead_area)
+        near = sample_moves(parsed, geo, moved, TIP_SPACING, TIP_ANGLE, ends=True)
+        far = sample_moves(parsed, geo, moved, FAR_TIP_SPACING, TIP_ANGLE, ends=True)
+        n_hit, reports = find_collisions(parsed, near, far, s, head, radius)
 
-    t1 = time.perf_counter()
-    model = ModelIndex(*_placed_mesh(mesh, np.eye(4) if placed else _placement(parsed)))
-    timings["index"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    bound = model.nearest_bound(s.p, WALL_SLACK * w)
-    wall = model.within(s.p, WALL_SLACK * w, bound)
-    timings["wall"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    inside_share = _inside_share(model, s.p[::INSIDE_STRIDE], bound[::INSIDE_STRIDE],
-                                 INSIDE_SLACK * w)
-    timings["inside"] = time.perf_counter() - t1
-
-    t1 = time.perf_counter()
-    ok = strict_support(s, t, w, radius)
-    cand = ~ok & ~wall
-    cand[cand] = _inside_far(model, s.p[cand], WALL_SLACK * w)
-    bridge = bridged(s, cand, t, w, proc["infill_density"])
-    timings["support"] = time.perf_counter() - t1
-
-    t1 = time.perf_counter()
-    cov, shell_cov = coverage(model, s, w, t, int(proc["perimeters"]), proc["infill_density"])
-    timings["coverage"] = time.perf_counter() - t1
-
-    t1 = time.perf_counter()
-    moved = positioned_moves(parsed)
-    near = sample_moves(parsed, geo, moved, TIP_SPACING, TIP_ANGLE, bead_area, ends=True)
-    far = sample_moves(parsed, geo, moved, FAR_TIP_SPACING, TIP_ANGLE, bead_area, ends=True)
-    n_hit, reports = find_collisions(parsed, near, far, s, head, radius)
-    timings["collisions"] = time.perf_counter() - t1
-
-    length = np.linalg.norm(np.nan_to_num(parsed.end[ext, :3] - parsed.start[ext, :3]), axis=1)
     bad_layers = [_layer_name(s, k) for k in bad_wall_layers(s, wall, ok)]
     n = max(len(s), 1)
     return ReplayReport(
-        moves=len(parsed), extruding_moves=len(ext), deposited_mm=float(length.sum()),
+        moves=len(parsed), extruding_moves=len(ext), deposited_mm=float(beads.length.sum()),
         points=len(s), inside=inside_share, coverage=cov, shell_coverage=shell_cov,
         supported=float((ok | bridge).sum() / n), bridged=float((bridge & ~ok).sum() / n),
         wall_points=int(wall.sum()),
         wall_supported=float(ok[wall].mean()) if wall.any() else 1.0,
         unsupported_wall_layers=bad_layers, collisions=n_hit,
         collision_messages=[r.message() for r in reports],
-        seconds=time.perf_counter() - t0, timings=timings)
+        seconds=time.perf_counter() - t0, timings=clock.wall, cpu_timings=clock.cpu)
+
+
+class _Stages:
+    """Wall and process CPU seconds of named stages (``with stages("name"): ...``)."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+
+    @contextmanager
+    def __call__(self, name: str) -> Iterator[None]:
+        wall, cpu = time.perf_counter(), time.process_time()
+        yield
+        self.wall[name] = time.perf_counter() - wall
+        self.cpu[name] = time.process_time() - cpu
 
 
 def _inside_share(model: ModelIndex, points: np.ndarray, bound: np.ndarray, slack: float

@@ -8,7 +8,10 @@ tip, and nothing later is there yet. A tip collides when a bead centre lies insi
 dips below the platform plane (z = 0) within the platform radius.
 
 Tips are grouped by nozzle axis; in each group only material above the lowest tip and below
-the highest tip plus the head height can matter, which is usually none.
+the highest tip plus the head height can matter, which is usually none. Tips of moves that
+turn the table each have an axis of their own: those are checked one by one against the beads
+in a ball around the head (:mod:`.replay_tip_hits`). A colliding tip reports the earliest bead
+it hits.
 """
 
 from __future__ import annotations
@@ -17,16 +20,18 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from slicer.gcode_reader import ParsedGcode
 from slicer.printhead import Printhead
+from slicer.replay_kdtree import point_tree
 from slicer.replay_samples import Samples
+from slicer.replay_tip_hits import HeadPart, ball_hits, earliest_hits
 
 PLATFORM_TOL = 1e-3  # mm below z = 0 that still counts as touching, not entering
 MAX_REPORTS = 20
 NEAR_PITCH = 0.5  # mm: bead resolution for the nozzle cone
 FAR_PITCH = 2.0  # mm: bead resolution for the carriage
+SMALL_GROUP = 16  # tips of one axis checked by ball queries rather than as a group
 
 
 @dataclass(frozen=True)
@@ -71,33 +76,6 @@ def _frame(u: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(u, e1)])
 
 
-@dataclass(frozen=True)
-class HeadPart:
-    """Some consecutive segments of a head: (start, end, r_start, r_end) above the tip."""
-
-    segments: tuple[tuple[float, float, float, float], ...]
-
-    @property
-    def top(self) -> float:
-        return self.segments[-1][1]
-
-    @property
-    def bottom(self) -> float:
-        return self.segments[0][0]
-
-    @property
-    def max_radius(self) -> float:
-        return max(max(r0, r1) for _, _, r0, r1 in self.segments)
-
-    def radius_at(self, h: np.ndarray) -> np.ndarray:
-        """Radius at heights ``h`` above the tip; -1 outside this part."""
-        out = np.full(h.shape, -1.0)
-        for a, b, r0, r1 in self.segments:
-            m = (h > a) & (h <= b)
-            out[m] = r0 + (r1 - r0) * (h[m] - a) / (b - a)
-        return out
-
-
 def voxel_representatives(beads: np.ndarray, move: np.ndarray, pitch: float) -> np.ndarray:
     """Index of the earliest bead in each occupied voxel of ``pitch``, sorted by move, (k,)."""
     if len(beads) == 0:
@@ -113,7 +91,7 @@ def voxel_representatives(beads: np.ndarray, move: np.ndarray, pitch: float) -> 
 
 def _group_hits(tips: Samples, sel: np.ndarray, beads: np.ndarray, bead_move: np.ndarray,
                 part: HeadPart) -> tuple[np.ndarray, np.ndarray]:
-    """(tip index, bead index) of the first hit of each colliding tip in one axis group.
+    """(tip index, bead index) of the earliest hit of each colliding tip in one axis group.
 
     Beads are in print order (``bead_move`` non-decreasing). A tip can only hit beads laid
     by earlier moves that lie above it: the running maximum of bead height along the axis
@@ -150,8 +128,8 @@ def _group_hits(tips: Samples, sel: np.ndarray, beads: np.ndarray, bead_move: np
 def _pair_hits(tips: Samples, group: np.ndarray, beads: np.ndarray, bead_move: np.ndarray,
                cand: np.ndarray, u: np.ndarray, frame: np.ndarray, part: HeadPart
                ) -> tuple[np.ndarray, np.ndarray]:
-    """First earlier bead inside the head part for each tip of ``group`` among ``cand``."""
-    tree = cKDTree(beads[cand] @ frame.T)
+    """Earliest bead inside the head part for each tip of ``group`` among ``cand``."""
+    tree = point_tree(beads[cand] @ frame.T)
     near = tree.query_ball_point(tips.p[group] @ frame.T, part.max_radius,
                                  return_sorted=False)
     counts = np.fromiter((len(x) for x in near), dtype=np.intp, count=len(group))
@@ -159,13 +137,7 @@ def _pair_hits(tips: Samples, group: np.ndarray, beads: np.ndarray, bead_move: n
         return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
     ti = np.repeat(group, counts)
     oi = cand[np.concatenate([np.asarray(x, dtype=np.intp) for x in near if len(x)])]
-    rel = beads[oi] - tips.p[ti]
-    h = rel @ u
-    rho = np.linalg.norm(rel - h[:, None] * u, axis=1)
-    hit = (bead_move[oi] < tips.move[ti]) & (rho < part.radius_at(h))
-    ti, oi = ti[hit], oi[hit]
-    first = np.unique(ti, return_index=True)[1]
-    return ti[first], oi[first]
+    return earliest_hits(tips, ti, beads, bead_move, oi, u, part)
 
 
 def axis_groups(u: np.ndarray) -> np.ndarray:
@@ -180,17 +152,31 @@ def axis_groups(u: np.ndarray) -> np.ndarray:
 
 def _material_hits(tips: Samples, deposits: Samples, part: HeadPart, pitch: float
                    ) -> list[tuple[int, int]]:
+    """(tip, deposit) of the earliest bead inside ``part`` at each colliding tip.
+
+    Tips sharing their axis with more than ``SMALL_GROUP`` others are checked by axis group
+    (:func:`_group_hits`, whose set-up costs a pass over the beads), the others by a ball
+    query each (:func:`~slicer.replay_tip_hits.ball_hits`).
+    """
+    hits: list[tuple[int, int]] = []
+    if len(tips) == 0:
+        return hits
     beads = deposits.p - deposits.u * (deposits.h[:, None] / 2.0)
     reps = voxel_representatives(beads, deposits.move, pitch)
     rep_beads, rep_move = beads[reps], deposits.move[reps]
     group = axis_groups(tips.u)
     order = np.argsort(group, kind="stable")
     cuts = np.flatnonzero(np.r_[True, group[order][1:] != group[order][:-1], True])
-    hits: list[tuple[int, int]] = []
-    if len(tips) == 0:
-        return hits
+    scattered = []
     for lo, hi in itertools.pairwise(cuts):
+        if hi - lo <= SMALL_GROUP:
+            scattered.append(order[lo:hi])
+            continue
         ti, oi = _group_hits(tips, order[lo:hi], rep_beads, rep_move, part)
+        hits.extend(zip(ti.tolist(), reps[oi].tolist(), strict=True))
+    if scattered and len(reps):
+        ti, oi = ball_hits(tips, np.concatenate(scattered), rep_beads, rep_move,
+                           point_tree(rep_beads), part)
         hits.extend(zip(ti.tolist(), reps[oi].tolist(), strict=True))
     return hits
 

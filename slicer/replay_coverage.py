@@ -16,6 +16,7 @@ from scipy.spatial import cKDTree
 
 from slicer.replay_columns import volume_grid
 from slicer.replay_geometry import ModelIndex
+from slicer.replay_kdtree import point_tree
 from slicer.replay_samples import Samples
 
 MAX_GRID = 60_000
@@ -64,7 +65,8 @@ def _core_covered(g: np.ndarray, s: Samples, tree: cKDTree, lateral: float, t: f
 
 
 def coverage(model: ModelIndex, s: Samples, line_width: float, layer_height: float,
-             perimeters: int, infill_density: float) -> tuple[float, float]:
+             perimeters: int, infill_density: float, tree: cKDTree | None = None
+             ) -> tuple[float, float]:
     """Share of the model volume covered, overall and in the shell.
 
     Parameters
@@ -73,6 +75,8 @@ def coverage(model: ModelIndex, s: Samples, line_width: float, layer_height: flo
         The model in the platform frame.
     s : Samples
         Deposited samples.
+    tree : cKDTree, optional
+        KD-tree of ``s.p`` (built when not given).
 
     Returns
     -------
@@ -87,7 +91,7 @@ def coverage(model: ModelIndex, s: Samples, line_width: float, layer_height: flo
         return 0.0, 0.0
     depth = max(perimeters, 1) * line_width
     shell = model.within(g, depth)
-    tree = cKDTree(s.p)
+    tree = point_tree(s.p) if tree is None else tree
     covered = np.zeros(len(g), dtype=bool)
     covered[shell] = _shell_covered(g[shell], s, tree, line_width, layer_height)
     core = ~shell

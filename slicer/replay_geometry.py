@@ -18,9 +18,9 @@ import math
 
 import manifold3d as m3
 import numpy as np
-from scipy.spatial import cKDTree
 
 from slicer.replay_columns import ColumnGrid
+from slicer.replay_kdtree import point_tree
 
 SURFACE_COVER = 0.15  # mm: every surface point lies this close to a surface sample
 INSIDE_PITCH = 0.05  # mm: spacing of the vertical lines of the inside test
@@ -129,7 +129,7 @@ class ModelIndex:
     def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
         self.tris = np.asarray(vertices, dtype=float)[np.asarray(faces)]
         points, self._owner = surface_samples(self.tris, SURFACE_COVER)
-        self._tree = cKDTree(points)
+        self._tree = point_tree(points)
         self.cover = SURFACE_COVER
         self._top = float(self.tris[:, :, 2].max()) + 1.0
         self._columns = ColumnGrid.build(self.tris, INSIDE_PITCH)

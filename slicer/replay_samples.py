@@ -108,55 +108,107 @@ def _fractions(count: np.ndarray, ends: bool) -> tuple[np.ndarray, np.ndarray]:
 
 def move_lengths(parsed: ParsedGcode) -> tuple[np.ndarray, np.ndarray]:
     """Machine-frame XYZ length and largest A/C change of every move (unknown start → 0)."""
-    delta = np.nan_to_num(parsed.end - parsed.start, nan=0.0)
-    return np.linalg.norm(delta[:, :3], axis=1), np.abs(delta[:, 3:5]).max(axis=1)
+    delta = parsed.end - parsed.start
+    delta[np.isnan(delta)] = 0.0
+    xyz = delta[:, :3]
+    return np.sqrt(np.einsum("ij,ij->i", xyz, xyz)), np.abs(delta[:, 3:5]).max(axis=1)
 
 
-def sample_moves(parsed: ParsedGcode, geometry: MachineGeometry, moves: np.ndarray,
-                 spacing: float, angle_step: float, bead_area: float,
-                 ends: bool = False, h_range: tuple[float, float] | None = None) -> Samples:
-    """Samples along ``moves`` (indices) at most ``spacing`` mm and ``angle_step``° apart.
+@dataclass
+class MappedMoves:
+    """Some moves with their ends mapped into the platform frame, ready to be sampled.
 
-    ``bead_area`` is filament area / line width: bead height = E · bead_area / length.
-    Samples sit at the middles of equal pieces, or at their ends (move end included) with
-    ``ends``. ``h_range`` clips bead heights: a file does not record bead widths, so a
-    narrow bead reads as a thin one.
+    Attributes
+    ----------
+    moves : (m,) int
+        Indices of the moves in the file.
+    start, end : (m, 5) float
+        Joint poses [X, Y, Z, A, C] before and after each move.
+    length, turn : (m,) float
+        Machine-frame XYZ length and largest A/C change, mm and degrees.
+    p0, p1 : (m, 3) float
+        Tip at the start and end of each move in the platform frame.
+    u0 : (m, 3) float
+        Nozzle axis at the start of each move.
+    h : (m,) float
+        Bead height from the extruded filament (0 for travel), mm.
     """
-    length, turn = move_lengths(parsed)
-    length, turn = length[moves], turn[moves]
-    count = np.maximum(1, np.ceil(np.maximum(length / spacing, turn / angle_step))).astype(int)
-    owner, s = _fractions(count, ends)
+
+    moves: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    length: np.ndarray
+    turn: np.ndarray
+    p0: np.ndarray
+    p1: np.ndarray
+    u0: np.ndarray
+    h: np.ndarray
+
+
+def map_moves(parsed: ParsedGcode, geometry: MachineGeometry, moves: np.ndarray,
+              lengths: tuple[np.ndarray, np.ndarray], bead_area: float,
+              h_range: tuple[float, float] | None = None) -> MappedMoves:
+    """Map the ends of ``moves`` (indices) back to the platform frame.
+
+    ``lengths`` is :func:`move_lengths` of the file. ``bead_area`` is filament area / line
+    width: bead height = E · bead_area / length. ``h_range`` clips bead heights: a file does
+    not record bead widths, so a narrow bead reads as a thin one.
+    """
+    length, turn = lengths[0][moves], lengths[1][moves]
     start, end = parsed.start[moves], parsed.end[moves]
     # fixed angles make the inverse affine: map the move ends once and interpolate
     p0 = inverse(start[:, :3], start[:, 3], start[:, 4], geometry)
     p1 = inverse(end[:, :3], end[:, 3], end[:, 4], geometry)
-    p = p0[owner] + (p1 - p0)[owner] * s[:, None]
-    u = nozzle_axes(start[:, 3], start[:, 4])[owner]
-    turning = np.flatnonzero(turn[owner] > 0)
-    if len(turning):
-        o = owner[turning]
-        j = start[o] + (end[o] - start[o]) * s[turning, None]
-        p[turning] = inverse(j[:, :3], j[:, 3], j[:, 4], geometry)
-        u[turning] = nozzle_axes(j[:, 3], j[:, 4])
     safe_len = np.where(length > 0, length, math.inf)
     h = np.maximum(parsed.e[moves], 0.0) * bead_area / safe_len
     if h_range is not None:
         h = np.where(h > 0, np.clip(h, *h_range), 0.0)
-    m = moves[owner]
-    step = ((p1 - p0) / count[:, None])[owner]
-    return Samples(p, u, h[owner], step, m, parsed.layer_seq[m], parsed.subpart[m],
+    return MappedMoves(moves, start, end, length, turn, p0, p1,
+                       nozzle_axes(start[:, 3], start[:, 4]), h)
+
+
+def sample_moves(parsed: ParsedGcode, geometry: MachineGeometry, mapped: MappedMoves,
+                 spacing: float, angle_step: float, ends: bool = False) -> Samples:
+    """Samples along the ``mapped`` moves at most ``spacing`` mm and ``angle_step``° apart.
+
+    Samples sit at the middles of equal pieces, or at their ends (move end included) with
+    ``ends``. Samples of moves that turn the table go through the inverse kinematics each.
+    """
+    mv = mapped
+    count = np.maximum(1, np.ceil(np.maximum(mv.length / spacing, mv.turn / angle_step)))
+    count = count.astype(np.int64)
+    owner, s = _fractions(count, ends)
+    p = mv.p0[owner] + (mv.p1 - mv.p0)[owner] * s[:, None]
+    u = mv.u0[owner]
+    turning = np.flatnonzero(mv.turn[owner] > 0)
+    if len(turning):
+        o = owner[turning]
+        j = mv.start[o] + (mv.end[o] - mv.start[o]) * s[turning, None]
+        p[turning] = inverse(j[:, :3], j[:, 3], j[:, 4], geometry)
+        u[turning] = nozzle_axes(j[:, 3], j[:, 4])
+    m = mv.moves[owner]
+    step = ((mv.p1 - mv.p0) / count[:, None])[owner]
+    return Samples(p, u, mv.h[owner], step, m, parsed.layer_seq[m], parsed.subpart[m],
                    parsed.layer[m])
 
 
-def extruding_moves(parsed: ParsedGcode) -> np.ndarray:
-    """Indices of moves that deposit material (E > 0 while X/Y/Z move from a known pose)."""
-    length, _ = move_lengths(parsed)
+def extruding_moves(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray] | None = None
+                    ) -> np.ndarray:
+    """Indices of moves that deposit material (E > 0 while X/Y/Z move from a known pose).
+
+    ``lengths`` is :func:`move_lengths` of the file (computed when not given).
+    """
+    length, _ = lengths or move_lengths(parsed)
     known = np.isfinite(parsed.start).all(axis=1)
     return np.flatnonzero((parsed.e > 0) & (length > 1e-9) & known)
 
 
-def positioned_moves(parsed: ParsedGcode) -> np.ndarray:
-    """Indices of all moves from a known pose that move X/Y/Z or turn the table."""
-    length, turn = move_lengths(parsed)
+def positioned_moves(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray] | None = None
+                     ) -> np.ndarray:
+    """Indices of all moves from a known pose that move X/Y/Z or turn the table.
+
+    ``lengths`` is :func:`move_lengths` of the file (computed when not given).
+    """
+    length, turn = lengths or move_lengths(parsed)
     known = np.isfinite(parsed.start).all(axis=1) & np.isfinite(parsed.end).all(axis=1)
     return np.flatnonzero(known & ((length > 1e-9) | (turn > 1e-9)))

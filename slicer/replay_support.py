@@ -21,6 +21,7 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
+from slicer.replay_kdtree import point_tree
 from slicer.replay_samples import Samples
 
 DEPTH_FACTOR = 1.5
@@ -82,7 +83,7 @@ def strict_support(s: Samples, layer_height: float, line_width: float,
     reach = float(dmax.max())
     tan = math.tan(math.radians(OVERHANG_DEG))
     r = math.hypot(reach, reach * tan + slack) + layer_height
-    tree = tree or cKDTree(s.p)
+    tree = tree or point_tree(s.p)
     todo = np.flatnonzero(~ok)
     for k in (1, min(NEIGHBOURS, len(s))):  # the nearest candidate settles most samples
         _, idx = tree.query(s.p[todo] - s.u[todo] * layer_height, k=k,
@@ -113,7 +114,7 @@ def bridged(s: Samples, candidates: np.ndarray, layer_height: float, line_width:
             continue
         prev = order[lo:hi]
         idx = np.flatnonzero(candidates & (s.seq == layer))
-        _, near = cKDTree(s.p[prev]).query(s.p[idx])
+        _, near = point_tree(s.p[prev]).query(s.p[idx])
         q = prev[near]
         rel = s.p[idx] - s.p[q]
         d = np.einsum("ij,ij->i", rel, s.u[idx])
