@@ -1,9 +1,12 @@
 """The asyncio shell around :class:`~hostd.link.protocol.Protocol`: one port, one writer.
 
 All protocol decisions are made by the pure state machine; this module only moves bytes,
-passes the loop's clock in, arms one timer at the protocol's deadline, and turns
+passes the loop's clock in, keeps one timer at (or before) the protocol's deadline, and turns
 acknowledgements and failures into futures. Everything runs on the event loop thread, and
 only :meth:`SerialLink._apply` writes to the port, so lines cannot be reordered.
+
+Latency: the lines of each chunk read from the port are handled in the transport's callback
+(no task switch), and every line the freed credit allows goes out in one ``write``.
 """
 
 from __future__ import annotations
@@ -47,9 +50,9 @@ class SerialLink:
         self.protocol = Protocol(settings)
         self.connection: Connection | None = None
         self._opener = opener
-        self._reader_task: asyncio.Task[None] | None = None
         self._reconnect_task: asyncio.Task[None] | None = None
         self._timer: asyncio.TimerHandle | None = None
+        self._timer_at = 0.0
         self._lines: deque[tuple[int, asyncio.Future[int]]] = deque()
         self._queries: dict[int, tuple[str, asyncio.Future[Reply]]] = {}
         self._handshake: asyncio.Future[None] | None = None
@@ -83,9 +86,8 @@ class SerialLink:
 
     async def _open_and_handshake(self) -> None:
         self._drop_connection()
-        self.connection = await self._opener(self.settings, self.emulator_settings)
-        self._reader_task = asyncio.get_running_loop().create_task(
-            self._read_loop(self.connection))
+        conn = self.connection = await self._opener(self.settings, self.emulator_settings)
+        conn.receiver.attach(self._on_lines, lambda reason: self._on_lost(conn, reason))
         self._handshake = asyncio.get_running_loop().create_future()
         self._apply(self.protocol.start(self._now()))
         await self._handshake
@@ -98,11 +100,7 @@ class SerialLink:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._reconnect_task
         self._apply(self.protocol.disconnected("closed", self._now()))
-        task = self._reader_task
         self._drop_connection()
-        if task is not None:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
 
     async def wait_connected(self) -> None:
         """Wait until the link is connected (after a reset or a reconnect)."""
@@ -195,35 +193,27 @@ class SerialLink:
     def _now(self) -> float:
         return asyncio.get_running_loop().time()
 
-    async def _read_loop(self, conn: Connection) -> None:
-        reason = "end of stream"
-        try:
-            while True:
-                raw = await conn.reader.readline()
-                if not raw:
-                    break
-                self._apply(self.protocol.receive(raw.decode("ascii", "replace"), self._now()))
-        except OSError as exc:
-            reason = str(exc)
+    def _on_lines(self, lines: list[bytes]) -> None:
+        self._apply(self.protocol.receive_lines(
+            [raw.decode("ascii", "replace") for raw in lines], self._now()))
+
+    def _on_lost(self, conn: Connection, reason: str) -> None:
         if conn is self.connection and not self._closed:
             self._apply(self.protocol.disconnected(reason, self._now()))
 
     def _apply(self, actions: list[Action]) -> None:
-        out = bytearray()
+        """Write every :class:`Write` at once, then handle the events in order."""
+        data = b"".join([a.data for a in actions if type(a) is Write])
+        if data:
+            self._write(data)
         for action in actions:
-            if isinstance(action, Write):
-                out += action.data
-            else:
-                self._write(out)
-                out.clear()
+            if type(action) is not Write:
                 self._event(action)
-        self._write(out)
         self._arm_timer()
 
-    def _write(self, data: bytearray) -> None:
-        conn = self.connection
-        if data and conn is not None and not conn.writer.is_closing():
-            conn.writer.write(bytes(data))
+    def _write(self, data: bytes) -> None:
+        if self.connection is not None:
+            self.connection.write(data)
 
     def _event(self, action: Action) -> None:
         if isinstance(action, Acked):
@@ -271,12 +261,19 @@ class SerialLink:
             self._start_reconnect()
 
     def _arm_timer(self) -> None:
+        """Keep one timer no later than the protocol's deadline.
+
+        Deadlines mostly move later (every ``ok`` extends them): the timer is then left as it
+        is and, when it fires early, re-armed; it is replaced only when the deadline comes
+        sooner.
+        """
+        due = self.protocol.deadline()
+        if due is None or (self._timer is not None and self._timer_at <= due):
+            return
         if self._timer is not None:
             self._timer.cancel()
-            self._timer = None
-        due = self.protocol.deadline()
-        if due is not None:
-            self._timer = asyncio.get_running_loop().call_at(due, self._on_timer)
+        self._timer_at = due
+        self._timer = asyncio.get_running_loop().call_at(due, self._on_timer)
 
     def _on_timer(self) -> None:
         self._timer = None
@@ -289,9 +286,6 @@ class SerialLink:
         if self.connection is not None:
             self.connection.close()
             self.connection = None
-        if self._reader_task is not None:
-            self._reader_task.cancel()
-            self._reader_task = None
 
     def _start_reconnect(self) -> None:
         if self._reconnect_task is None or self._reconnect_task.done():

@@ -94,13 +94,18 @@ class Protocol:
 
     def receive(self, line: str, now: float) -> list[Action]:
         """Handle one line received from the firmware."""
-        reply = parse_reply(line)
-        self.observed.update(reply)
-        handler = self._handlers.get(type(reply))
-        if handler is not None:
-            handler(self, reply, now)
-        elif self.state == "ready":
-            self._collect(reply)
+        return self.receive_lines([line], now)
+
+    def receive_lines(self, lines: list[str], now: float) -> list[Action]:
+        """Handle lines received together; the lines they free go out after all of them."""
+        for line in lines:
+            reply = parse_reply(line)
+            self.observed.update(reply)
+            handler = self._handlers.get(type(reply))
+            if handler is not None:
+                handler(self, reply, now)
+            elif self.state == "ready":
+                self._collect(reply)
         self._pump(now)
         return self._flush()
 

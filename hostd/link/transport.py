@@ -1,11 +1,18 @@
-"""Open the byte stream to the board: a real port or pty, or the in-process emulator."""
+"""Open the byte stream to the board: a real port or pty, or the in-process emulator.
+
+The port is an asyncio transport with a :class:`LineReceiver` protocol: every chunk the
+kernel hands over is split into lines in the transport's own callback and passed on at once,
+so an ``ok`` is handled (and the lines it frees are written) without a task switch.
+"""
 
 from __future__ import annotations
 
 import asyncio
 import socket
+from collections.abc import Callable
 from dataclasses import dataclass
 
+import serial
 import serial_asyncio
 
 from hostd.link.settings import LinkSettings
@@ -13,21 +20,96 @@ from hostd.sim.server import SocketEmulator
 from hostd.sim.settings import SimSettings
 
 SIM_SCHEME = "sim://"
+LinesHandler = Callable[[list[bytes]], None]
+LostHandler = Callable[[str], None]
+
+
+class LineReceiver(asyncio.Protocol):
+    """Splits the received bytes into lines (without the newline).
+
+    Lines that arrive before :meth:`attach` (the banner of a board that boots as the port
+    opens) are kept and handed over on attaching.
+    """
+
+    def __init__(self) -> None:
+        self._partial = b""
+        self._early: list[bytes] = []
+        self._lost: str | None = None
+        self._on_lines: LinesHandler | None = None
+        self._on_lost: LostHandler | None = None
+
+    def attach(self, on_lines: LinesHandler, on_lost: LostHandler) -> None:
+        """Route the lines (and the end of the connection) to these callbacks from now on."""
+        self._on_lines, self._on_lost = on_lines, on_lost
+        early, self._early = self._early, []
+        if early:
+            on_lines(early)
+        if self._lost is not None:
+            on_lost(self._lost)
+
+    def detach(self) -> None:
+        """Stop delivering (the link has moved on to another connection)."""
+        self._on_lines = self._on_lost = None
+
+    def data_received(self, data: bytes) -> None:
+        *lines, self._partial = (self._partial + data).split(b"\n")
+        if not lines:
+            return
+        if self._on_lines is None:
+            self._early += lines
+        else:
+            self._on_lines(lines)
+
+    def eof_received(self) -> bool:
+        return False  # close the transport; connection_lost follows
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._lost = str(exc) if exc is not None else "end of stream"
+        if self._on_lost is not None:
+            self._on_lost(self._lost)
+
+
+class DirectSerialTransport(serial_asyncio.SerialTransport):
+    """pyserial-asyncio's transport, writing at once when nothing is queued.
+
+    The stock transport queues every write until the next loop iteration (a writer callback
+    per line); asyncio's own socket and pipe transports try the write first, and so does this.
+    """
+
+    def write(self, data: bytes) -> None:  # type: ignore[override]
+        if self._closing or self._write_buffer or not data:
+            super().write(data)
+            return
+        try:
+            n = self._serial.write(data)
+        except (BlockingIOError, InterruptedError):
+            n = 0
+        except serial.SerialException as exc:
+            self._fatal_error(exc, "Fatal write error on serial transport")
+            return
+        if n < len(data):
+            super().write(data[n:])
 
 
 @dataclass
 class Connection:
-    """An open port: the stream pair and, for ``sim://``, the emulator behind it."""
+    """An open port: its transport, the line receiver and, for ``sim://``, the emulator."""
 
-    reader: asyncio.StreamReader
-    writer: asyncio.StreamWriter
+    transport: asyncio.Transport
+    receiver: LineReceiver
     emulator: SocketEmulator | None = None
+
+    def write(self, data: bytes) -> None:
+        """Queue bytes for the board (written at once when the port can take them)."""
+        if not self.transport.is_closing():
+            self.transport.write(data)
 
     def close(self) -> None:
         """Close the port (and stop the emulator)."""
+        self.receiver.detach()
         if self.emulator is not None:
             self.emulator.unplug()
-        self.writer.close()
+        self.transport.close()
 
 
 async def open_port(settings: LinkSettings, sim: SimSettings | None) -> Connection:
@@ -40,13 +122,24 @@ async def open_port(settings: LinkSettings, sim: SimSettings | None) -> Connecti
     """
     if settings.port.startswith(SIM_SCHEME):
         return await _open_sim(sim or SimSettings(baud=settings.baud))
-    reader, writer = await serial_asyncio.open_serial_connection(
-        url=settings.port, baudrate=settings.baud)
-    return Connection(reader, writer)
+    loop = asyncio.get_running_loop()
+    port = serial.serial_for_url(settings.port, baudrate=settings.baud)
+    receiver = LineReceiver()
+    transport = DirectSerialTransport(loop, receiver, port)
+    return Connection(transport, receiver)
+
+
+async def open_socket(sock: socket.socket) -> Connection:
+    """A connection over a connected stream socket (the emulator's, or a test's)."""
+    receiver = LineReceiver()
+    transport, _ = await asyncio.get_running_loop().create_connection(lambda: receiver,
+                                                                      sock=sock)
+    return Connection(transport, receiver)
 
 
 async def _open_sim(sim: SimSettings) -> Connection:
     host, board = socket.socketpair()
     emulator = await SocketEmulator.serve(sim, board)
-    reader, writer = await asyncio.open_connection(sock=host)
-    return Connection(reader, writer, emulator)
+    conn = await open_socket(host)
+    conn.emulator = emulator
+    return conn

@@ -17,7 +17,7 @@ import pytest
 
 from hostd.link import LinkSettings, SerialLink
 from hostd.link.replies import Position, Temperatures
-from hostd.link.transport import Connection
+from hostd.link.transport import Connection, open_socket
 from hostd.sim.settings import SimSettings
 
 virtual = pytest.importorskip(
@@ -92,8 +92,7 @@ def opener_for(overrides: dict[str, Any]) -> Any:
         stop = threading.Event()
         threading.Thread(target=_pump_writes, args=(board, printer), daemon=True).start()
         threading.Thread(target=_pump_reads, args=(board, printer, stop), daemon=True).start()
-        reader, writer = await asyncio.open_connection(sock=host)
-        return Connection(reader, writer)
+        return await open_socket(host)
     return open_virtual
 
 
