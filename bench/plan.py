@@ -5,6 +5,11 @@ planned in ≤ 3 s, a small share of the 10 s STL → checked G-code budget of `
 Each model is decomposed once, then planned N times (default 3); the fastest run is reported
 with its process CPU time next to the wall time (on a shared machine the wall time of a single
 run mostly measures the neighbours). The skeleton cache is cleared before every run.
+
+Stages: sections, skeleton, layers (marching) and obstacles are wall seconds of the main
+thread; zones and toolpaths (shells, fill, order, lift) are CPU seconds of the threads that
+ran them (:mod:`slicer.subpart_paths`), which overlap the marching; finish is the wall time
+the main thread waits for them after the last sub-part is marched.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 
-STAGES = ("sections", "skeleton", "layers", "zones", "toolpaths", "obstacles")
+STAGES = ("sections", "skeleton", "layers", "zones", "toolpaths", "obstacles", "finish")
 
 
 def plan_once(dec: Decomposition) -> PrintPlan:

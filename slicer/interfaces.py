@@ -81,6 +81,17 @@ def interface_zone(layer: LayerPlane, base: ChildBase, depth: float, t: float,
     return zone if zone.area >= MIN_AREA else shapely.Polygon()
 
 
+def layer_interface(layer: LayerPlane, bases: list[ChildBase], depth: float, t: float,
+                    width: float) -> tuple[BaseGeometry, int | None]:
+    """One parent layer's :func:`interface_zones` entry: (zone, child or None)."""
+    parts = [(interface_zone(layer, b, depth, t, width), b.child) for b in bases]
+    parts = [(z, c) for z, c in parts if not z.is_empty]
+    if not parts:
+        return shapely.Polygon(), None
+    return (polygonal(shapely.union_all([z for z, _ in parts])),
+            max(parts, key=lambda zc: zc[0].area)[1])
+
+
 def interface_zones(layers: list[LayerPlane], bases: list[ChildBase], depth: float, t: float,
                     width: float) -> tuple[list[BaseGeometry], list[int | None]]:
     """Per parent layer: the union of its interface zones and the child it serves first.
@@ -91,14 +102,5 @@ def interface_zones(layers: list[LayerPlane], bases: list[ChildBase], depth: flo
     child : list of int or None
         The child of the largest zone on that layer (``Layer.interface_child``).
     """
-    zones, owner = [], []
-    for layer in layers:
-        parts = [(interface_zone(layer, b, depth, t, width), b.child) for b in bases]
-        parts = [(z, c) for z, c in parts if not z.is_empty]
-        if not parts:
-            zones.append(shapely.Polygon())
-            owner.append(None)
-            continue
-        zones.append(polygonal(shapely.union_all([z for z, _ in parts])))
-        owner.append(max(parts, key=lambda zc: zc[0].area)[1])
-    return zones, owner
+    pairs = [layer_interface(layer, bases, depth, t, width) for layer in layers]
+    return [z for z, _ in pairs], [c for _, c in pairs]

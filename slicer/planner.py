@@ -13,8 +13,9 @@ the quadrant); here every layer has its own A/C from the two-solution solver.
 
 from __future__ import annotations
 
+import os
 import time
-from collections.abc import Sequence
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import manifold3d as m3
@@ -27,27 +28,21 @@ from shapely.geometry.base import BaseGeometry
 from kinematics.errors import UnreachableDirection
 from kinematics.machine import MachineGeometry
 from kinematics.orient import solve_orientation
-from slicer.interfaces import ChildBase, interface_zones
-from slicer.layers import (
-    LayerPlane,
-    MarchSettings,
-    SlicingError,
-    local_thickness,
-    march_layers,
-)
-from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
-from slicer.planes2d import from_plane, plane_frame, polygonal, section, slicing_solid
+from slicer.interfaces import ChildBase
+from slicer.layers import LayerPlane, MarchSettings, SlicingError, march_layers
+from slicer.plan import Layer, PrintPlan, SubpartPlan
+from slicer.planes2d import from_plane, plane_frame, section, slicing_solid
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 from slicer.skeleton import SkeletonCurve, line_curve, skeleton_curve
-from slicer.toolpaths import FillSpec, Path2D, layer_paths, shell
-from slicer.zones import solid_zones, under_walls
+from slicer.subpart_paths import build_layers, fill_spec, submit_shell
 
 __all__ = ["SlicingError", "plan_planar", "plan_print"]
 
 OBSTACLE_SPACING = 1.0  # mm between obstacle samples (printed surfaces and outlines)
 TIP_SPACING = 2.0  # mm between nozzle positions checked per layer
 UP = np.array([0.0, 0.0, 1.0])
+WORKERS = min(4, os.cpu_count() or 1)  # threads of the per-layer polygon work
 
 _CURVES: dict[tuple, SkeletonCurve] = {}  # skeleton cache: (mesh hash, start, normal) → curve
 _SOLIDS: dict[int, tuple[trimesh.Trimesh, m3.Manifold]] = {}  # id(mesh) → (mesh, solid)
@@ -179,28 +174,6 @@ def _march(settings: ProcessSettings) -> MarchSettings:
                          settings.max_layer_factor)
 
 
-def _spec(settings: ProcessSettings) -> FillSpec:
-    return FillSpec(settings.line_width, settings.perimeters, settings.infill_density,
-                    settings.infill_angle)
-
-
-def _lift(paths: Sequence[Path2D], layer: LayerPlane, settings: ProcessSettings,
-          speed_factor: float, flow: float, first: bool) -> list[Path]:
-    """2D paths → plan Paths in the platform frame with per-vertex local height."""
-    out = []
-    for p in paths:
-        pts = from_plane(p.xy, layer.origin, layer.frame)
-        h = _heights(pts, layer)
-        base = settings.perimeter_speed if p.kind == "perimeter" else settings.print_speed
-        speed = (settings.first_layer_speed if first else base) * speed_factor
-        out.append(Path(p.kind, pts, h, p.width, speed, flow, p.closed))
-    return out
-
-
-def _heights(points: np.ndarray, layer: LayerPlane) -> np.ndarray:
-    return local_thickness(points, layer.frame[2], layer.below)
-
-
 @dataclass
 class _Timer:
     laps: dict[str, float] = field(default_factory=dict)
@@ -213,9 +186,10 @@ class _Timer:
 
 
 def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np.ndarray, bool],
-                   settings: ProcessSettings, machine: _Machine, timer: _Timer
-                   ) -> tuple[list[LayerPlane], list[tuple[float, float]]]:
-    """March one sub-part's layers; returns them with their (A, C).
+                   settings: ProcessSettings, machine: _Machine, timer: _Timer, pool: Executor
+                   ) -> tuple[list[LayerPlane], list[tuple[float, float]], list[Future]]:
+    """March one sub-part's layers; returns them with their (A, C) and their shells, started
+    on ``pool`` as each layer is accepted.
 
     ``base`` is (point, normal, upright): an upright part (the root, the planar control) is
     sliced along the vertical through its base centre; others along their skeleton curve.
@@ -234,59 +208,21 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
     def accept(origin: np.ndarray, frame: np.ndarray, region: BaseGeometry) -> str | None:
         return machine.accept(origin, frame, region)
 
-    layers = []
+    layers, shells, spec = [], [], fill_spec(settings)
     for layer in march_layers(solid, curve, centre, base[1], _march(settings), accept, index):
         layers.append(layer)
+        shells.append(submit_shell(pool, layer.region, spec))
         poses.append(machine.pose)
         machine.c = machine.pose[1]
         machine.printed(_outline(layer.region, layer.origin, layer.frame, OBSTACLE_SPACING))
     timer.lap("layers")
-    return layers, poses
+    return layers, poses, shells
 
 
 def _child_base(index: int, mesh: trimesh.Trimesh, point: np.ndarray, normal: np.ndarray,
                 t: float) -> ChildBase:
     _, sec, frame = _base_centre(_solid(mesh), point, normal, t)
     return ChildBase(index, np.asarray(point, dtype=float), frame, sec)
-
-
-def _union(a: BaseGeometry, b: BaseGeometry) -> BaseGeometry:
-    """a ∪ b, without a boolean when either is empty."""
-    if b.is_empty:
-        return a
-    return b if a.is_empty else polygonal(shapely.union(a, b), valid=True)
-
-
-def _build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, float]],
-                  settings: ProcessSettings, grounded: bool, bases: list[ChildBase],
-                  timer: _Timer) -> list[Layer]:
-    """Zones, toolpaths and plan Layers of one sub-part."""
-    spec = _spec(settings)
-    shells = [shell(lp.region, spec) for lp in layers]
-    timer.lap("toolpaths")
-    domains = [s.domain for s in shells]
-    solids = solid_zones(layers, settings.solid_layers, grounded, domains)
-    footings = under_walls(layers, [s.inner for s in shells], domains, settings.line_width)
-    solids = [_union(a, b) for a, b in zip(solids, footings, strict=True)]
-    t = settings.layer_height
-    depth = settings.interface_layers * t
-    izones, owners = interface_zones(layers, bases, depth, t, settings.line_width)
-    timer.lap("zones")
-    out, here = [], np.zeros(2)
-    for i, (lp, (a, c)) in enumerate(zip(layers, poses, strict=True)):
-        solid = solids[i] if izones[i].is_empty else polygonal(
-            shapely.union(solids[i], izones[i]), valid=True)
-        paths2d = layer_paths(lp.region, solid, izones[i], spec, i, here, shells[i])
-        if paths2d:
-            here = paths2d[-1].xy[-1]
-        first_child = i == 0 and not grounded
-        factor = settings.interface_speed_factor if first_child else 1.0
-        flow = settings.interface_flow if first_child else 1.0
-        paths = _lift(paths2d, lp, settings, factor, flow, first=(i == 0 and grounded))
-        out.append(Layer(index, i, lp.origin.copy(), lp.normal.copy(), float(a), float(c),
-                         lp.thickness, paths, owners[i], first_child))
-    timer.lap("toolpaths")
-    return out
 
 
 def plan_print(decomposition, settings: ProcessSettings, geometry: MachineGeometry,
@@ -319,24 +255,38 @@ def plan_print(decomposition, settings: ProcessSettings, geometry: MachineGeomet
     machine = _Machine(geometry, head)
     subs = {s.index: s for s in decomposition.subparts}
     t = settings.layer_height
-    plans = []
-    for k in decomposition.order:
-        sp = subs[k]
-        base = _base_of(sp)
-        layers, poses = _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings,
-                                       machine, timer)
-        kids = [_child_base(c.index, c.mesh, c.base_plane.point, c.base_plane.normal, t)
-                for c in decomposition.subparts if c.parent == k and c.base_plane is not None]
-        timer.lap("sections")
-        plan_layers = _build_layers(k, layers, poses, settings, sp.parent is None, kids, timer)
-        plans.append(SubpartPlan(k, sp.parent, None if sp.parent is None else base[0],
-                                 None if sp.parent is None else base[1],
-                                 np.asarray(sp.build_direction, dtype=float), plan_layers))
-        machine.parts = np.vstack([machine.parts, _surface_samples(sp.mesh, OBSTACLE_SPACING)])
-        timer.lap("obstacles")
+    jobs = []
+    with ThreadPoolExecutor(WORKERS) as pool, ThreadPoolExecutor(1) as builder:
+        for k in decomposition.order:
+            sp = subs[k]
+            base = _base_of(sp)
+            layers, poses, shells = _slice_subpart(k, sp.mesh, (*base, sp.parent is None),
+                                                   settings, machine, timer, pool)
+            kids = [_child_base(c.index, c.mesh, c.base_plane.point, c.base_plane.normal, t)
+                    for c in decomposition.subparts
+                    if c.parent == k and c.base_plane is not None]
+            timer.lap("sections")
+            jobs.append((sp, base, builder.submit(build_layers, k, layers, poses, settings,
+                                                  sp.parent is None, kids, pool, shells)))
+            machine.parts = np.vstack([machine.parts,
+                                       _surface_samples(sp.mesh, OBSTACLE_SPACING)])
+            timer.lap("obstacles")
+        plans = [SubpartPlan(sp.index, sp.parent, None if sp.parent is None else base[0],
+                             None if sp.parent is None else base[1],
+                             np.asarray(sp.build_direction, dtype=float),
+                             _built(job, timer)) for sp, base, job in jobs]
+        timer.lap("finish")
     volume = float(getattr(decomposition, "volume", sum(s.mesh.volume for s in subs.values())))
     return PrintPlan(np.asarray(decomposition.placement, dtype=float), plans, volume,
                      dict(timer.laps))
+
+
+def _built(job: Future, timer: _Timer) -> list[Layer]:
+    """A sub-part's layers from its build job; its CPU seconds go to the timer."""
+    layers, seconds = job.result()
+    for name, s in seconds.items():
+        timer.laps[name] = timer.laps.get(name, 0.0) + s
+    return layers
 
 
 def _base_of(sp) -> tuple[np.ndarray, np.ndarray]:
@@ -357,8 +307,11 @@ def plan_planar(mesh: trimesh.Trimesh, settings: ProcessSettings,
     timer = _Timer()
     machine = _Machine(geometry, None, fixed=True)
     base = (np.array([0.0, 0.0, float(mesh.bounds[0][2])]), UP.copy(), True)
-    layers, poses = _slice_subpart(0, mesh, base, settings, machine, timer)
-    plan_layers = _build_layers(0, layers, poses, settings, True, [], timer)
+    with ThreadPoolExecutor(WORKERS) as pool:
+        layers, poses, shells = _slice_subpart(0, mesh, base, settings, machine, timer, pool)
+        plan_layers, seconds = build_layers(0, layers, poses, settings, True, [], pool, shells)
+    timer.lap("finish")
+    timer.laps.update({k: timer.laps.get(k, 0.0) + v for k, v in seconds.items()})
     sub = SubpartPlan(0, None, None, None, UP.copy(), plan_layers)
     return PrintPlan(np.eye(4) if placement is None else np.asarray(placement, dtype=float),
                      [sub], float(mesh.volume), dict(timer.laps))

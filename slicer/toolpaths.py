@@ -380,16 +380,25 @@ def mark_interface(paths: list[Path2D], zone: BaseGeometry, width: float) -> lis
 
 
 def order_paths(paths: list[Path2D], start: np.ndarray) -> list[Path2D]:
-    """Greedy nearest-neighbour order from ``start`` (2,), reversing/rotating paths to suit."""
-    left = list(paths)
+    """Greedy nearest-neighbour order from ``start`` (2,), reversing/rotating paths to suit.
+
+    The next path is the one with an end nearest the nozzle (loops: their first vertex; ties:
+    the earliest path); a loop then starts at its vertex nearest the nozzle, an open path
+    whose far end is nearer is reversed.
+    """
+    if not paths:
+        return []
+    heads = np.array([p.xy[0] for p in paths])
+    tails = np.array([p.xy[-1] for p in paths])
+    closed = np.array([p.closed for p in paths])
+    left = np.ones(len(paths), dtype=bool)
     out, here = [], np.asarray(start, dtype=float)
-    while left:
-        heads = np.array([p.xy[0] for p in left])
-        tails = np.array([p.xy[-1] for p in left])
+    for _ in range(len(paths)):
         dh = np.linalg.norm(heads - here, axis=1)
-        dt = np.where([p.closed for p in left], np.inf, np.linalg.norm(tails - here, axis=1))
-        j = int(np.argmin(np.minimum(dh, dt)))
-        p = left.pop(j)
+        dt = np.where(closed, np.inf, np.linalg.norm(tails - here, axis=1))
+        j = int(np.argmin(np.where(left, np.minimum(dh, dt), np.inf)))
+        left[j] = False
+        p = paths[j]
         if p.closed:
             k = int(np.argmin(np.linalg.norm(p.xy - here, axis=1)))
             p = Path2D(p.kind, np.roll(p.xy, -k, axis=0), True, p.width)
@@ -450,7 +459,8 @@ def _end(p: Path2D) -> np.ndarray:
 
 def layer_paths(region: BaseGeometry, solid: BaseGeometry, interface: BaseGeometry,
                 spec: FillSpec, layer_index: int, start: np.ndarray | None = None,
-                walls: Shell | None = None) -> list[Path2D]:
+                walls: Shell | None = None, fill: list[Path2D] | None = None
+                ) -> list[Path2D]:
     """All paths of one layer, ordered.
 
     Parameters
@@ -467,6 +477,9 @@ def layer_paths(region: BaseGeometry, solid: BaseGeometry, interface: BaseGeomet
         Nozzle position before the layer.
     walls : Shell, optional
         ``shell(region, spec)`` if already computed.
+    fill : list of Path2D, optional
+        ``fill_paths(walls.domain, solid, interface, spec, layer_index)`` if already computed
+        (in any order: it is ordered here).
     """
     sh = shell(region, spec) if walls is None else walls
     here = np.zeros(2) if start is None else start
@@ -474,5 +487,6 @@ def layer_paths(region: BaseGeometry, solid: BaseGeometry, interface: BaseGeomet
     here = _end(ordered[-1]) if ordered else here
     ordered += order_paths(interface_gaps(ordered, interface, sh.domain, spec.width), here)
     here = _end(ordered[-1]) if ordered else here
-    return ordered + order_paths(fill_paths(sh.domain, solid, interface, spec, layer_index),
-                                 here)
+    if fill is None:
+        fill = fill_paths(sh.domain, solid, interface, spec, layer_index)
+    return ordered + order_paths(fill, here)

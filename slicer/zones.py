@@ -83,6 +83,18 @@ def _wall_footing(inner: BaseGeometry, domain: BaseGeometry, above: BaseGeometry
     return polygonal(shapely.intersection(domain, grown), valid=True)
 
 
+def wall_footing(layers: Sequence[LayerPlane], i: int, inners: Sequence[BaseGeometry],
+                 domains: Sequence[BaseGeometry], width: float) -> BaseGeometry:
+    """Layer i's zone of :func:`under_walls` (``inners``/``domains`` are read at i, i + 1)."""
+    if i + 1 >= len(layers) or domains[i].is_empty:
+        return shapely.Polygon()
+    layer, nxt = layers[i], layers[i + 1]
+    src, dst = (nxt.origin, nxt.frame), (layer.origin, layer.frame)
+    above = map_between(nxt.region, src, dst)
+    above_inner = map_between(inners[i + 1], src, dst)
+    return _wall_footing(inners[i], domains[i], above, above_inner, width)
+
+
 def under_walls(layers: Sequence[LayerPlane], inners: Sequence[BaseGeometry],
                 domains: Sequence[BaseGeometry], width: float) -> list[BaseGeometry]:
     """Per layer, the part of its fill domain to print solid because the next layer's walls
@@ -105,17 +117,21 @@ def under_walls(layers: Sequence[LayerPlane], inners: Sequence[BaseGeometry],
     list of shapely geometry
         Zone i ⊂ ``domains[i]``; empty for the last layer (nothing stands on it here).
     """
-    out = []
-    for i, layer in enumerate(layers):
-        if i + 1 >= len(layers) or domains[i].is_empty:
-            out.append(shapely.Polygon())
-            continue
-        nxt = layers[i + 1]
-        src, dst = (nxt.origin, nxt.frame), (layer.origin, layer.frame)
-        above = map_between(nxt.region, src, dst)
-        above_inner = map_between(inners[i + 1], src, dst)
-        out.append(_wall_footing(inners[i], domains[i], above, above_inner, width))
-    return out
+    return [wall_footing(layers, i, inners, domains, width) for i in range(len(layers))]
+
+
+def solid_zone(layers: Sequence[LayerPlane], i: int, k: int, grounded: bool,
+               domain: BaseGeometry | None = None) -> BaseGeometry:
+    """Layer i's zone of :func:`solid_zones` (``domain``: its fill domain, default the
+    region)."""
+    layer = layers[i]
+    domain = layer.region if domain is None else domain
+    if k <= 0 or domain.is_empty:
+        return shapely.Polygon()
+    below = _neighbours(layers, i, sorted({i - k, i - 1}), open_end=not grounded)
+    above = _neighbours(layers, i, sorted({i + 1, i + k}), open_end=False)
+    both = None if below is None or above is None else below + above
+    return exposed(domain, layer.region, both)
 
 
 def solid_zones(layers: Sequence[LayerPlane], k: int, grounded: bool,
@@ -140,14 +156,5 @@ def solid_zones(layers: Sequence[LayerPlane], k: int, grounded: bool,
     list of shapely geometry
         Zone i ⊂ ``domains[i]``.
     """
-    out = []
-    for i, layer in enumerate(layers):
-        domain = layer.region if domains is None else domains[i]
-        if k <= 0 or domain.is_empty:
-            out.append(shapely.Polygon())
-            continue
-        below = _neighbours(layers, i, sorted({i - k, i - 1}), open_end=not grounded)
-        above = _neighbours(layers, i, sorted({i + 1, i + k}), open_end=False)
-        both = None if below is None or above is None else below + above
-        out.append(exposed(domain, layer.region, both))
-    return out
+    return [solid_zone(layers, i, k, grounded, None if domains is None else domains[i])
+            for i in range(len(layers))]

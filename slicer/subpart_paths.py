@@ -1,0 +1,198 @@
+"""Toolpaths of one sub-part's marched layers, with the per-layer work on a thread pool.
+
+What a layer's paths need splits in three:
+
+1. its shell (perimeters, gap fill, fill domain) needs only its own region;
+2. its solid, wall-footing and interface zones and its fill lines need the shells and regions
+   of a few neighbours;
+3. the order of its paths (greedy from where the nozzle is) needs the previous layer's last
+   point, and so do the wall pieces split at an interface and what they leave of it.
+
+Stages 1 and 2 are independent per layer and run on a thread pool (shapely releases the GIL
+while GEOS works, so two cores offset most of the polygon booleans); stage 3 runs in layer
+order. Every layer is computed by the same calls on the same inputs as in a plain loop, and
+results are collected in layer order, so the plan does not depend on the pool or on timing.
+
+Stage timings are CPU seconds of the threads doing the work (:func:`time.thread_time`),
+summed over tasks: on two cores they add up to more than the wall time.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import Executor, Future
+from dataclasses import dataclass
+from typing import TypeVar
+
+import numpy as np
+import shapely
+from shapely.geometry.base import BaseGeometry
+
+from slicer.interfaces import ChildBase, layer_interface
+from slicer.layers import LayerPlane, local_thickness
+from slicer.plan import Layer, Path
+from slicer.planes2d import from_plane, polygonal
+from slicer.settings import ProcessSettings
+from slicer.toolpaths import FillSpec, Path2D, Shell, fill_paths, layer_paths, shell
+from slicer.zones import solid_zone, wall_footing
+
+T = TypeVar("T")
+
+
+def fill_spec(settings: ProcessSettings) -> FillSpec:
+    """The fill parameters of the process settings."""
+    return FillSpec(settings.line_width, settings.perimeters, settings.infill_density,
+                    settings.infill_angle)
+
+
+def timed(fn: Callable[..., T], *args: object) -> tuple[T, float]:
+    """``fn(*args)`` and the CPU seconds of the calling thread it took."""
+    t = time.thread_time()
+    out = fn(*args)
+    return out, time.thread_time() - t
+
+
+def submit_shell(pool: Executor, region: BaseGeometry, spec: FillSpec
+                 ) -> Future[tuple[Shell, float]]:
+    """Start a layer's shell on the pool (as soon as the layer is marched)."""
+    return pool.submit(timed, shell, region, spec)
+
+
+@dataclass
+class _Zones:
+    """A layer's stage-2 results."""
+
+    solid: BaseGeometry
+    interface: BaseGeometry
+    owner: int | None
+    fill: list[Path2D]
+
+
+def _union(a: BaseGeometry, b: BaseGeometry) -> BaseGeometry:
+    """a ∪ b, without a boolean when either is empty."""
+    if b.is_empty:
+        return a
+    return b if a.is_empty else polygonal(shapely.union(a, b), valid=True)
+
+
+@dataclass
+class _Job:
+    """What every layer of one sub-part shares in stage 2."""
+
+    layers: Sequence[LayerPlane]
+    shells: Sequence[Shell]
+    settings: ProcessSettings
+    grounded: bool
+    bases: list[ChildBase]
+
+    @property
+    def domains(self) -> list[BaseGeometry]:
+        """Fill domain per layer."""
+        return self._lists[0]
+
+    @property
+    def inners(self) -> list[BaseGeometry]:
+        """Area inside the perimeters per layer."""
+        return self._lists[1]
+
+    @functools.cached_property
+    def _lists(self) -> tuple[list[BaseGeometry], list[BaseGeometry]]:
+        return [sh.domain for sh in self.shells], [sh.inner for sh in self.shells]
+
+    def zones(self, i: int) -> tuple[BaseGeometry, BaseGeometry, int | None]:
+        """Layer i's solid zone (skins and wall footing), interface zone and its child."""
+        s, domains, inners = self.settings, self.domains, self.inners
+        solid = _union(solid_zone(self.layers, i, s.solid_layers, self.grounded, domains[i]),
+                       wall_footing(self.layers, i, inners, domains, s.line_width))
+        t = s.layer_height
+        izone, owner = layer_interface(self.layers[i], self.bases, s.interface_layers * t, t,
+                                       s.line_width)
+        if not izone.is_empty:
+            solid = polygonal(shapely.union(solid, izone), valid=True)
+        return solid, izone, owner
+
+    def layer(self, i: int) -> tuple[_Zones, float, float]:
+        """Stage 2 of layer i with its zone and fill CPU seconds."""
+        (solid, izone, owner), t_zone = timed(self.zones, i)
+        fill, t_fill = timed(fill_paths, self.shells[i].domain, solid, izone,
+                             fill_spec(self.settings), i)
+        return _Zones(solid, izone, owner, fill), t_zone, t_fill
+
+
+def _lift(paths: Sequence[Path2D], layer: LayerPlane, settings: ProcessSettings,
+          speed_factor: float, flow: float, first: bool) -> list[Path]:
+    """2D paths → plan Paths in the platform frame with per-vertex local height (all paths of
+    the layer mapped at once)."""
+    if not paths:
+        return []
+    cut = np.cumsum([len(p.xy) for p in paths])[:-1]
+    pts = from_plane(np.concatenate([p.xy for p in paths]), layer.origin, layer.frame)
+    h = local_thickness(pts, layer.frame[2], layer.below)
+    out = []
+    for p, xyz, hp in zip(paths, np.split(pts, cut), np.split(h, cut), strict=True):
+        base = settings.perimeter_speed if p.kind == "perimeter" else settings.print_speed
+        speed = (settings.first_layer_speed if first else base) * speed_factor
+        out.append(Path(p.kind, xyz, hp, p.width, speed, flow, p.closed))
+    return out
+
+
+def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, float]],
+                 settings: ProcessSettings, grounded: bool, bases: list[ChildBase],
+                 pool: Executor, shells: Sequence[Future[tuple[Shell, float]]] | None = None
+                 ) -> tuple[list[Layer], dict[str, float]]:
+    """Zones, toolpaths and plan Layers of one sub-part.
+
+    Parameters
+    ----------
+    index : int
+        The sub-part.
+    layers, poses : list
+        Its marched layers and their table angles (A, C).
+    settings : ProcessSettings
+    grounded : bool
+        The sub-part stands on the platform (bottom skin, first-layer speed).
+    bases : list of ChildBase
+        Its children's bases (interface zones).
+    pool : Executor
+        Runs stages 1 and 2; its tasks never wait on each other.
+    shells : sequence of Future, optional
+        Stage 1 already submitted per layer (:func:`submit_shell`).
+
+    Returns
+    -------
+    layers : list of Layer
+    seconds : dict
+        CPU seconds of "toolpaths" (shells, fill, order, lift) and "zones".
+    """
+    spec = fill_spec(settings)
+    if shells is None:
+        shells = [submit_shell(pool, lp.region, spec) for lp in layers]
+    done = [f.result() for f in shells]
+    job = _Job(layers, [s for s, _ in done], settings, grounded, bases)
+    staged = list(pool.map(job.layer, range(len(layers))))
+    seconds = {"toolpaths": sum(t for _, t in done) + sum(t for _, _, t in staged),
+               "zones": sum(t for _, t, _ in staged)}
+    out, t = timed(_order_and_lift, index, job, [z for z, _, _ in staged], poses)
+    seconds["toolpaths"] += t
+    return out, seconds
+
+
+def _order_and_lift(index: int, job: _Job, zones: list[_Zones],
+                    poses: list[tuple[float, float]]) -> list[Layer]:
+    """Stage 3: paths ordered from the previous layer's end, lifted into the platform frame."""
+    s, spec = job.settings, fill_spec(job.settings)
+    out, here = [], np.zeros(2)
+    for i, (lp, (a, c), z) in enumerate(zip(job.layers, poses, zones, strict=True)):
+        paths2d = layer_paths(lp.region, z.solid, z.interface, spec, i, here, job.shells[i],
+                              z.fill)
+        if paths2d:
+            here = paths2d[-1].xy[-1]
+        first_child = i == 0 and not job.grounded
+        factor = s.interface_speed_factor if first_child else 1.0
+        flow = s.interface_flow if first_child else 1.0
+        paths = _lift(paths2d, lp, s, factor, flow, first=(i == 0 and job.grounded))
+        out.append(Layer(index, i, lp.origin.copy(), lp.normal.copy(), float(a), float(c),
+                         lp.thickness, paths, z.owner, first_child))
+    return out
