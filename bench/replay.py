@@ -3,8 +3,10 @@
 Run: ``.venv/bin/python bench/replay.py [--models pipe3-50k ...] [--repeat 3] [--planar]``.
 Each model is sliced once at ``--height`` without the check and its G-code text cached under
 ``--cache`` (``out/bench-replay`` by default, rebuilt with ``--fresh``); the replay check is
-then run ``--repeat`` times on the parsed text against the placed mesh. Printed per stage:
-the best wall and CPU seconds over the runs (CPU counts every core the stage used), then the
+then run ``--repeat`` times on the parsed text against the placed mesh. Printed: the best
+total wall and process CPU seconds, per stage the best wall and CPU seconds over the runs
+(with ``--threads 1`` the stages run one after another and a stage's CPU counts every core
+it used; with two threads stages overlap and the CPU is the stage's own thread's), then the
 figures of the last run, so a change that moves them shows at once.
 """
 
@@ -43,7 +45,7 @@ def sliced(name: str, height: float, planar: bool, cache: Path, fresh: bool
     return parse_lines(path.read_text().splitlines()), placed
 
 
-def best_stages(parsed: ParsedGcode, mesh: trimesh.Trimesh, repeat: int
+def best_stages(parsed: ParsedGcode, mesh: trimesh.Trimesh, repeat: int, threads: int
                 ) -> tuple[ReplayReport, dict[str, float], dict[str, float], float, float]:
     """(last report, best wall s per stage, best CPU s per stage, best total wall, CPU)."""
     wall: dict[str, float] = {}
@@ -52,7 +54,8 @@ def best_stages(parsed: ParsedGcode, mesh: trimesh.Trimesh, repeat: int
     rep = None
     for _ in range(max(1, repeat)):
         w0, c0 = time.perf_counter(), time.process_time()
-        rep = replay_check(parsed, mesh, Printhead.default(), 150.0, placed=True)
+        rep = replay_check(parsed, mesh, Printhead.default(), 150.0, placed=True,
+                           threads=threads)
         total_wall = min(total_wall, time.perf_counter() - w0)
         total_cpu = min(total_cpu, time.process_time() - c0)
         for k, v in rep.timings.items():
@@ -70,6 +73,8 @@ def main() -> None:
     parser.add_argument("--height", type=float, default=0.2)
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--planar", action="store_true", help="also the planar control")
+    parser.add_argument("--threads", type=int, default=2,
+                        help="1: stages one after another, CPU per stage of the process")
     parser.add_argument("--cache", type=Path, default=Path("out/bench-replay"))
     parser.add_argument("--fresh", action="store_true", help="re-slice, ignoring the cache")
     args = parser.parse_args()
@@ -77,10 +82,10 @@ def main() -> None:
     for name in args.models:
         for planar in (False, True) if args.planar else (False,):
             parsed, mesh = sliced(name, args.height, planar, args.cache, args.fresh)
-            rep, wall, cpu, tw, tc = best_stages(parsed, mesh, args.repeat)
+            rep, wall, cpu, tw, tc = best_stages(parsed, mesh, args.repeat, args.threads)
             kind = "planar" if planar else "5-axis"
-            print(f"{name} {args.height:.2f} {kind}: {rep.points} samples, best of "
-                  f"{args.repeat}: {tw:.2f} s wall, {tc:.2f} s CPU")
+            print(f"{name} {args.height:.2f} {kind}: {rep.points} samples, {args.threads} "
+                  f"thread(s), best of {args.repeat}: {tw:.2f} s wall, {tc:.2f} s CPU")
             for k in wall:
                 print(f"  {k:>10} {wall[k]:6.2f} s wall {cpu[k]:6.2f} s CPU")
             d = rep.to_dict()

@@ -17,21 +17,21 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 import trimesh
 
+from kinematics.machine import MachineGeometry
 from slicer.gcode_reader import GcodeFormatError, ParsedGcode, read_gcode
 from slicer.printhead import Printhead
-from slicer.replay_collide import find_collisions
+from slicer.replay_collide import Collision, find_collisions
 from slicer.replay_coverage import coverage
-from slicer.replay_geometry import INSIDE_PITCH, ModelIndex
+from slicer.replay_geometry import ModelIndex
 from slicer.replay_kdtree import point_tree
 from slicer.replay_samples import (
+    MappedMoves,
     Samples,
     extruding_moves,
     geometry_from_header,
@@ -40,6 +40,7 @@ from slicer.replay_samples import (
     positioned_moves,
     sample_moves,
 )
+from slicer.replay_stages import Stages
 from slicer.replay_support import WALL_SLACK, bad_wall_layers, bridged, strict_support
 
 INSIDE_SLACK = 0.1  # × line width
@@ -138,15 +139,16 @@ def part_frame_path(parsed: ParsedGcode) -> np.ndarray:
 
 
 def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | None = None,
-                 platform_radius: float | None = None, placed: bool = False) -> ReplayReport:
+                 platform_radius: float | None = None, placed: bool = False, threads: int = 2
+                 ) -> ReplayReport:
     """Replay ``parsed`` against ``mesh`` and report the figures.
 
     ``mesh`` is in STL coordinates (moved by the file's placement), or already in the
     platform frame with ``placed``. ``head`` and ``platform_radius`` default to the file's
-    ``;HOSTD_KINEMATICS`` values.
+    ``;HOSTD_KINEMATICS`` values. With ``threads`` ≥ 2 the model's queries run on a second
+    thread beside the deposits' (:mod:`.replay_stages`); the figures are the same.
     """
     t0 = time.perf_counter()
-    clock = _Stages()
     geo = geometry_from_header(parsed)
     proc = _process(parsed)
     w, t = proc["line_width"], proc["layer_height"]
@@ -154,60 +156,82 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     radius = platform_radius if platform_radius is not None else float(
         parsed.headers.get("KINEMATICS", {}).get("platform_radius", 150.0))
     bead_area = math.pi * proc["filament_diameter"] ** 2 / 4.0 / w
-    with clock("sample"):
+    placement = np.eye(4) if placed else _placement(parsed)
+    with Stages(threads) as stages:
+        model_f = stages.submit("index", lambda: ModelIndex(
+            *_placed_mesh(mesh, placement), inside_pitch=_inside_pitch(w)))
         lengths = move_lengths(parsed)
-        ext = extruding_moves(parsed, lengths)
-        beads = map_moves(parsed, geo, ext, lengths, bead_area, (H_MIN * t, H_MAX * t))
-        s = sample_moves(parsed, geo, beads, 0.5 * w, TIP_ANGLE)
-    with clock("index"):
-        model = ModelIndex(*_placed_mesh(mesh, np.eye(4) if placed else _placement(parsed)))
-    with clock("wall"):
-        bound = model.nearest_bound(s.p, WALL_SLACK * w)
-        wall = model.within(s.p, WALL_SLACK * w, bound)
-    with clock("inside"):
-        inside_share = _inside_share(model, s.p[::INSIDE_STRIDE], bound[::INSIDE_STRIDE],
-                                     INSIDE_SLACK * w)
-    with clock("support"):
-        tree = point_tree(s.p)
-        ok = strict_support(s, t, w, radius, tree)
-        cand = ~ok & ~wall
-        cand[cand] = _inside_far(model, s.p[cand], WALL_SLACK * w)
-        bridge = bridged(s, cand, t, w, proc["infill_density"])
-    with clock("coverage"):
-        cov, shell_cov = coverage(model, s, w, t, int(proc["perimeters"]),
-                                  proc["infill_density"], tree)
-    with clock("collisions"):
-        moved = map_moves(parsed, geo, positioned_moves(parsed, lengths), lengths, bead_area)
-        near = sample_moves(parsed, geo, moved, TIP_SPACING, TIP_ANGLE, ends=True)
-        far = sample_moves(parsed, geo, moved, FAR_TIP_SPACING, TIP_ANGLE, ends=True)
-        n_hit, reports = find_collisions(parsed, near, far, s, head, radius)
-
+        beads, s = stages.run("sample", lambda: _deposits(parsed, geo, lengths, bead_area, w, t))
+        wall_f = stages.submit("wall", lambda: _wall(model_f.result(), s.p, w))
+        inside_f = stages.submit("inside", lambda: _inside_share(
+            model_f.result(), s.p[::INSIDE_STRIDE], wall_f.result()[0][::INSIDE_STRIDE],
+            INSIDE_SLACK * w))
+        tree = stages.run("tree", lambda: point_tree(s.p))
+        ok = stages.run("support", lambda: strict_support(s, t, w, radius, tree))
+        n_hit, reports = stages.run("collisions", lambda: _collisions(
+            parsed, geo, lengths, bead_area, s, head, radius))
+        cov, shell_cov = stages.run("coverage", lambda: coverage(
+            model_f.result(), s, w, t, int(proc["perimeters"]), proc["infill_density"], tree))
+        wall = wall_f.result()[1]
+        bridge = stages.run("bridging", lambda: _bridging(
+            model_f.result(), s, ok, wall, t, w, proc["infill_density"]))
+        inside_share = inside_f.result()
     bad_layers = [_layer_name(s, k) for k in bad_wall_layers(s, wall, ok)]
     n = max(len(s), 1)
     return ReplayReport(
-        moves=len(parsed), extruding_moves=len(ext), deposited_mm=float(beads.length.sum()),
+        moves=len(parsed), extruding_moves=len(beads.moves), deposited_mm=float(beads.length.sum()),
         points=len(s), inside=inside_share, coverage=cov, shell_coverage=shell_cov,
         supported=float((ok | bridge).sum() / n), bridged=float((bridge & ~ok).sum() / n),
         wall_points=int(wall.sum()),
         wall_supported=float(ok[wall].mean()) if wall.any() else 1.0,
         unsupported_wall_layers=bad_layers, collisions=n_hit,
         collision_messages=[r.message() for r in reports],
-        seconds=time.perf_counter() - t0, timings=clock.wall, cpu_timings=clock.cpu)
+        seconds=time.perf_counter() - t0, timings=stages.wall, cpu_timings=stages.cpu)
 
 
-class _Stages:
-    """Wall and process CPU seconds of named stages (``with stages("name"): ...``)."""
+def _inside_pitch(line_width: float) -> float:
+    """Spacing of the inside test's lines: exact for every point farther than the inside
+    slack from the surface (pitch / √2 below it), where closer ones count through the slack."""
+    return INSIDE_SLACK * line_width * math.sqrt(2.0) * (1.0 - 1e-9)
 
-    def __init__(self) -> None:
-        self.wall: dict[str, float] = {}
-        self.cpu: dict[str, float] = {}
 
-    @contextmanager
-    def __call__(self, name: str) -> Iterator[None]:
-        wall, cpu = time.perf_counter(), time.process_time()
-        yield
-        self.wall[name] = time.perf_counter() - wall
-        self.cpu[name] = time.process_time() - cpu
+def _deposits(parsed: ParsedGcode, geo: MachineGeometry,
+              lengths: tuple[np.ndarray, np.ndarray], bead_area: float, line_width: float,
+              layer_height: float) -> tuple[MappedMoves, Samples]:
+    """The extruding moves and their samples every half line width."""
+    beads = map_moves(parsed, geo, extruding_moves(parsed, lengths), lengths, bead_area,
+                      (H_MIN * layer_height, H_MAX * layer_height))
+    return beads, sample_moves(parsed, geo, beads, 0.5 * line_width, TIP_ANGLE)
+
+
+def _wall(model: ModelIndex, points: np.ndarray, line_width: float
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """(:meth:`~ModelIndex.nearest_bound`, wall mask) of points (n, 3): walls lie within
+    ``WALL_SLACK`` line widths of the surface."""
+    bound = model.nearest_bound(points, WALL_SLACK * line_width)
+    return bound, model.within(points, WALL_SLACK * line_width, bound)
+
+
+def _collisions(parsed: ParsedGcode, geo: MachineGeometry,
+                lengths: tuple[np.ndarray, np.ndarray], bead_area: float, deposits: Samples,
+                head: Printhead, radius: float) -> tuple[int, list[Collision]]:
+    """:func:`~slicer.replay_collide.find_collisions` of the head sampled along every move."""
+    moved = map_moves(parsed, geo, positioned_moves(parsed, lengths), lengths, bead_area)
+    near = sample_moves(parsed, geo, moved, TIP_SPACING, TIP_ANGLE, ends=True)
+    far = sample_moves(parsed, geo, moved, FAR_TIP_SPACING, TIP_ANGLE, ends=True)
+    return find_collisions(parsed, near, far, deposits, head, radius)
+
+
+def _bridging(model: ModelIndex, s: Samples, ok: np.ndarray, wall: np.ndarray,
+              layer_height: float, line_width: float, infill_density: float) -> np.ndarray:
+    """Unsupported samples inside the model away from its walls that bridge sparse infill.
+
+    Those lie farther than the wall distance from the surface, where the column test alone
+    is exact (the inside pitch is finer than that).
+    """
+    cand = ~ok & ~wall
+    cand[cand] = model.parity_inside(s.p[cand])
+    return bridged(s, cand, layer_height, line_width, infill_density)
 
 
 def _inside_share(model: ModelIndex, points: np.ndarray, bound: np.ndarray, slack: float
@@ -215,23 +239,15 @@ def _inside_share(model: ModelIndex, points: np.ndarray, bound: np.ndarray, slac
     """Share of points (n, 3) inside the model or within ``slack`` of its surface.
 
     ``bound`` is the points' :meth:`~ModelIndex.nearest_bound`. The column test is exact
-    for points farther than ``INSIDE_PITCH / √2`` from the surface; with that below
+    for points farther than ``model.inside_pitch / √2`` from the surface; with that below
     ``slack`` every closer point counts through the slack, so no ray is cast.
     """
     if len(points) == 0:
         return 1.0
     near = np.isfinite(model.distance(points, slack, bound))
-    if INSIDE_PITCH / math.sqrt(2.0) > slack:
+    if model.inside_pitch / math.sqrt(2.0) > slack:
         return float(np.mean(model.inside(points) | near))
     return float(np.mean(model.parity_inside(points) | near))
-
-
-def _inside_far(model: ModelIndex, points: np.ndarray, clearance: float) -> np.ndarray:
-    """Inside test of points known to lie farther than ``clearance`` from the surface: the
-    column test alone is exact there when ``clearance ≥ INSIDE_PITCH / √2`` (no distances)."""
-    if clearance >= INSIDE_PITCH / math.sqrt(2.0):
-        return model.parity_inside(points)
-    return model.inside(points)
 
 
 def _layer_name(s: Samples, seq: int) -> str:

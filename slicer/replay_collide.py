@@ -30,7 +30,7 @@ from slicer.replay_tip_hits import HeadPart, ball_hits, earliest_hits
 PLATFORM_TOL = 1e-3  # mm below z = 0 that still counts as touching, not entering
 MAX_REPORTS = 20
 NEAR_PITCH = 0.5  # mm: bead resolution for the nozzle cone
-FAR_PITCH = 2.0  # mm: bead resolution for the carriage
+FAR_PITCH = 4 * NEAR_PITCH  # mm: bead resolution for the carriage (nests in NEAR_PITCH)
 SMALL_GROUP = 16  # tips of one axis checked by ball queries rather than as a group
 
 
@@ -64,8 +64,10 @@ def platform_hits(tips: Samples, head: Printhead, radius: float) -> np.ndarray:
     hit = np.zeros(len(tips), dtype=bool)
     for s, _, r0, r1 in head.segments:
         for hgt, r in ((s, r0), (_, r1)):
-            low = tips.p + hgt * u - r * down
-            hit |= (low[:, 2] < -PLATFORM_TOL) & (np.linalg.norm(low[:, :2], axis=1) <= radius)
+            below = np.flatnonzero(tips.p[:, 2] + hgt * u[:, 2] - r * down[:, 2]
+                                   < -PLATFORM_TOL)
+            low = tips.p[below, :2] + hgt * u[below, :2] - r * down[below, :2]
+            hit[below] |= np.linalg.norm(low, axis=1) <= radius
     return hit
 
 
@@ -76,17 +78,20 @@ def _frame(u: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(u, e1)])
 
 
-def voxel_representatives(beads: np.ndarray, move: np.ndarray, pitch: float) -> np.ndarray:
-    """Index of the earliest bead in each occupied voxel of ``pitch``, sorted by move, (k,)."""
+def voxel_representatives(beads: np.ndarray, pitch: float) -> np.ndarray:
+    """Index of the first bead in each occupied voxel of ``pitch``, ascending, (k,).
+
+    With the beads (n, 3) in print order, that is the earliest one. Voxels of a pitch that
+    is a power of two times this one nest exactly (the scalings are exact), so the first
+    beads of a coarser grid are found among this grid's representatives.
+    """
     if len(beads) == 0:
         return np.zeros(0, dtype=int)
     cell = np.floor(beads / pitch).astype(np.int64)
     cell -= cell.min(axis=0)
     dims = cell.max(axis=0) + 1
     key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
-    order = np.lexsort((move, key))
-    first = order[np.r_[True, key[order][1:] != key[order][:-1]]]
-    return np.sort(first)
+    return np.sort(np.unique(key, return_index=True)[1])
 
 
 def _group_hits(tips: Samples, sel: np.ndarray, beads: np.ndarray, bead_move: np.ndarray,
@@ -98,9 +103,9 @@ def _group_hits(tips: Samples, sel: np.ndarray, beads: np.ndarray, bead_move: np
     rules out almost every tip at once; the rest are checked one layer at a time.
     """
     u = tips.u[sel[0]]
-    hz_o = beads @ u
-    top = np.maximum.accumulate(hz_o) if len(hz_o) else hz_o
     end = np.searchsorted(bead_move, tips.move[sel], side="left")
+    hz_o = beads[:int(end.max())] @ u  # later beads are never in a tip's way
+    top = np.maximum.accumulate(hz_o) if len(hz_o) else hz_o
     hz_t = tips.p[sel] @ u
     risky = (end > 0) & (hz_t + part.bottom < top[np.maximum(end, 1) - 1])
     out_t, out_o = [np.zeros(0, dtype=int)], [np.zeros(0, dtype=int)]
@@ -150,9 +155,12 @@ def axis_groups(u: np.ndarray) -> np.ndarray:
     return np.unique(q, axis=0, return_inverse=True)[1].ravel()  # a hash collision
 
 
-def _material_hits(tips: Samples, deposits: Samples, part: HeadPart, pitch: float
-                   ) -> list[tuple[int, int]]:
-    """(tip, deposit) of the earliest bead inside ``part`` at each colliding tip.
+def _material_hits(tips: Samples, beads: np.ndarray, bead_move: np.ndarray, reps: np.ndarray,
+                   part: HeadPart) -> list[tuple[int, int]]:
+    """(tip, bead) of the earliest bead inside ``part`` at each colliding tip.
+
+    ``beads`` (n, 3) are in print order, laid by moves ``bead_move`` (n,); only their
+    voxel representatives ``reps`` are tested.
 
     Tips sharing their axis with more than ``SMALL_GROUP`` others are checked by axis group
     (:func:`_group_hits`, whose set-up costs a pass over the beads), the others by a ball
@@ -161,9 +169,7 @@ def _material_hits(tips: Samples, deposits: Samples, part: HeadPart, pitch: floa
     hits: list[tuple[int, int]] = []
     if len(tips) == 0:
         return hits
-    beads = deposits.p - deposits.u * (deposits.h[:, None] / 2.0)
-    reps = voxel_representatives(beads, deposits.move, pitch)
-    rep_beads, rep_move = beads[reps], deposits.move[reps]
+    rep_beads, rep_move = beads[reps], bead_move[reps]
     group = axis_groups(tips.u)
     order = np.argsort(group, kind="stable")
     cuts = np.flatnonzero(np.r_[True, group[order][1:] != group[order][:-1], True])
@@ -197,11 +203,14 @@ def find_collisions(parsed: ParsedGcode, near: Samples, far: Samples, deposits: 
         At most ``MAX_REPORTS``, in file order.
     """
     segs = head.segments
-    found = [(near, t, o) for t, o in _material_hits(near, deposits, HeadPart(segs[:1]),
-                                                      NEAR_PITCH)]
+    beads = deposits.p - deposits.u * (deposits.h[:, None] / 2.0)
+    reps = voxel_representatives(beads, NEAR_PITCH)
+    found = [(near, t, o) for t, o in _material_hits(near, beads, deposits.move, reps,
+                                                      HeadPart(segs[:1]))]
     if len(segs) > 1:
-        found += [(far, t, o) for t, o in _material_hits(far, deposits, HeadPart(segs[1:]),
-                                                          FAR_PITCH)]
+        far_reps = reps[voxel_representatives(beads[reps], FAR_PITCH)]
+        found += [(far, t, o) for t, o in _material_hits(far, beads, deposits.move, far_reps,
+                                                          HeadPart(segs[1:]))]
     found += [(near, int(t), -1) for t in np.flatnonzero(platform_hits(near, head,
                                                                         platform_radius))]
     found.sort(key=lambda x: (int(x[0].move[x[1]]), x[2]))

@@ -6,8 +6,8 @@
   ``cover = SURFACE_COVER`` of one. The nearest sample bounds a point's distance d to the
   surface: ``d0 − cover ≤ d ≤ d0``. Only points whose bound straddles a threshold are
   resolved exactly, against the triangles of the samples within ``threshold + cover``;
-* a :class:`~slicer.replay_columns.ColumnGrid` of vertical lines at ``INSIDE_PITCH``: a
-  point farther than ``INSIDE_PITCH / √2`` from the surface is inside exactly when the line
+* a :class:`~slicer.replay_columns.ColumnGrid` of vertical lines at ``inside_pitch``: a
+  point farther than ``inside_pitch / √2`` from the surface is inside exactly when the line
   through its nearest node crosses the mesh an odd number of times above it;
 * the mesh as a ``manifold3d`` solid, whose ray cast decides the few points closer than that.
 """
@@ -23,7 +23,7 @@ from slicer.replay_columns import ColumnGrid
 from slicer.replay_kdtree import point_tree
 
 SURFACE_COVER = 0.15  # mm: every surface point lies this close to a surface sample
-INSIDE_PITCH = 0.05  # mm: spacing of the vertical lines of the inside test
+INSIDE_PITCH = 0.05  # mm: default spacing of the vertical lines of the inside test
 _UP = np.array([0.0, 0.0, 1.0])
 
 
@@ -124,15 +124,19 @@ class ModelIndex:
     ----------
     vertices : (v, 3) float
     faces : (t, 3) int
+    inside_pitch : float
+        Spacing of the vertical lines of the inside test, mm.
     """
 
-    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray,
+                 inside_pitch: float = INSIDE_PITCH) -> None:
         self.tris = np.asarray(vertices, dtype=float)[np.asarray(faces)]
         points, self._owner = surface_samples(self.tris, SURFACE_COVER)
         self._tree = point_tree(points)
         self.cover = SURFACE_COVER
         self._top = float(self.tris[:, :, 2].max()) + 1.0
-        self._columns = ColumnGrid.build(self.tris, INSIDE_PITCH)
+        self.inside_pitch = inside_pitch
+        self._columns = ColumnGrid.build(self.tris, inside_pitch)
         self._solid = _solid(vertices, faces)
 
     def nearest_bound(self, points: np.ndarray, cap: float) -> np.ndarray:
@@ -192,7 +196,7 @@ class ModelIndex:
     def inside(self, points: np.ndarray, near: np.ndarray | None = None) -> np.ndarray:
         """Which points (n, 3) lie inside the closed mesh, (n,) bool.
 
-        ``near`` is :meth:`distance` of the points with a limit ≥ ``INSIDE_PITCH / √2``
+        ``near`` is :meth:`distance` of the points with a limit ≥ ``inside_pitch / √2``
         (computed when not given): only points that close need a ray of their own.
         """
         p = np.asarray(points, dtype=float).reshape(-1, 3)
@@ -201,7 +205,7 @@ class ModelIndex:
         out = self._columns.parity_inside(p)
         if self._solid is None:
             return out
-        close = INSIDE_PITCH / math.sqrt(2.0)
+        close = self.inside_pitch / math.sqrt(2.0)
         d = self.distance(p, close) if near is None else near
         for i in np.flatnonzero(d <= close):
             hits = self._solid.ray_cast(p[i], np.array([p[i, 0], p[i, 1], self._top]))
@@ -209,6 +213,6 @@ class ModelIndex:
         return out
 
     def parity_inside(self, points: np.ndarray) -> np.ndarray:
-        """The column test alone: exact for points farther than ``INSIDE_PITCH / √2`` from the
+        """The column test alone: exact for points farther than ``inside_pitch / √2`` from the
         surface (cheaper than :meth:`inside` where closer points are judged otherwise)."""
         return self._columns.parity_inside(np.asarray(points, dtype=float).reshape(-1, 3))

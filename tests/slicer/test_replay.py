@@ -7,6 +7,7 @@ import pytest
 from handmade_plans import H, box_plan, prism_layers, prism_mesh, two_part_plan
 
 from kinematics.machine import MachineGeometry
+from slicer import replay_collide
 from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import parse_lines
 from slicer.plan import PrintPlan, SubpartPlan
@@ -18,9 +19,9 @@ GEO = MachineGeometry()
 UP = np.array([0.0, 0.0, 1.0])
 
 
-def _replay(plan: PrintPlan, mesh):
+def _replay(plan: PrintPlan, mesh, threads: int = 2):
     lines = generate(plan, ProcessSettings(), MachineSetup(GEO)).lines
-    return replay_check(parse_lines(lines), mesh)
+    return replay_check(parse_lines(lines), mesh, threads=threads)
 
 
 def _union(*meshes):
@@ -28,6 +29,21 @@ def _union(*meshes):
     for m in meshes[1:]:
         solid = solid + to_manifold(m)
     return to_trimesh(solid)
+
+
+def _tilted_child_into_the_base():
+    plan, d = two_part_plan(GEO, tilt_deg=30.0)
+    return plan, _union(prism_mesh(np.zeros(3), UP, 5.0, 20 * H),
+                        prism_mesh(np.array([0.0, 0.0, 20 * H]), d, 2.0, 10 * H))
+
+
+def _low_part_beside_a_tower():
+    tower = prism_layers(0, np.zeros(3), UP, 3.0, 100, GEO)
+    low = prism_layers(1, np.array([12.0, 0.0, 0.0]), UP, 2.0, 5, GEO)
+    plan = PrintPlan(np.eye(4), [SubpartPlan(0, None, None, None, UP, tower),
+                                 SubpartPlan(1, 0, None, None, UP, low)])
+    return plan, _union(prism_mesh(np.zeros(3), UP, 3.0, 100 * H),
+                        prism_mesh(np.array([12.0, 0.0, 0.0]), UP, 2.0, 5 * H))
 
 
 def test_clean_box_passes_every_figure():
@@ -63,23 +79,14 @@ def test_tilted_child_over_a_clear_base_has_no_collision():
 
 
 def test_nozzle_inside_printed_material_is_flagged():
-    plan, d = two_part_plan(GEO, tilt_deg=30.0)  # the tilted base cuts into the root's top
-    mesh = _union(prism_mesh(np.zeros(3), UP, 5.0, 20 * H),
-                  prism_mesh(np.array([0.0, 0.0, 20 * H]), d, 2.0, 10 * H))
-    rep = _replay(plan, mesh)
+    rep = _replay(*_tilted_child_into_the_base())
     assert rep.collisions > 0 and not rep.ok
     assert any("sub-part 1" in m and "printed part (sub-part 0" in m
                for m in rep.collision_messages)
 
 
 def test_carriage_hitting_a_tall_neighbour_is_flagged():
-    tower = prism_layers(0, np.zeros(3), UP, 3.0, 100, GEO)
-    low = prism_layers(1, np.array([12.0, 0.0, 0.0]), UP, 2.0, 5, GEO)
-    plan = PrintPlan(np.eye(4), [SubpartPlan(0, None, None, None, UP, tower),
-                                 SubpartPlan(1, 0, None, None, UP, low)])
-    mesh = _union(prism_mesh(np.zeros(3), UP, 3.0, 100 * H),
-                  prism_mesh(np.array([12.0, 0.0, 0.0]), UP, 2.0, 5 * H))
-    rep = _replay(plan, mesh)
+    rep = _replay(*_low_part_beside_a_tower())
     assert rep.collisions > 0
     assert any("sub-part 1, layer 0: the head hits the printed part (sub-part 0" in m
                for m in rep.collision_messages)
@@ -98,3 +105,27 @@ def test_tilted_print_on_the_platform_hits_the_platform():
 def test_figures_are_shares(name):
     rep = _replay(box_plan(GEO, n_layers=5), prism_mesh(np.zeros(3), UP, 5.0, 5 * H))
     assert 0.0 <= getattr(rep, name) <= 1.0
+
+
+@pytest.mark.parametrize("case", [_tilted_child_into_the_base, _low_part_beside_a_tower])
+def test_ball_queries_and_axis_groups_find_the_same_collisions(case, monkeypatch):
+    plan, mesh = case()
+    found = []
+    for small_group in (0, 10**9):  # every tip checked with its axis group / by a ball query
+        monkeypatch.setattr(replay_collide, "SMALL_GROUP", small_group)
+        rep = _replay(plan, mesh)
+        found.append((rep.collisions, rep.collision_messages))
+    assert found[0][0] > 0
+    assert found[0] == found[1]
+
+
+def test_one_thread_and_two_give_the_same_figures():
+    plan = box_plan(GEO, n_layers=20, shift=(2.0, 0.0), shift_from=10)
+    mesh = _union(prism_mesh(np.zeros(3), UP, 5.0, 10 * H),
+                  prism_mesh(np.array([2.0, 0.0, 10 * H]), UP, 5.0, 10 * H))
+    one, two = (_replay(plan, mesh, threads=n).to_dict() for n in (1, 2))
+    for rep in (one, two):
+        for timing in ("seconds", "timings", "cpu_timings"):
+            rep.pop(timing)
+    assert one["wall_supported"] < 1.0  # the figures under comparison are not trivial
+    assert one == two
