@@ -10,6 +10,7 @@ breaks a constraint: it raises :class:`DecompositionError` instead.
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from dataclasses import dataclass, field
@@ -24,8 +25,8 @@ from kinematics.machine import MachineGeometry
 from slicer.buildorder import MERGE_ANGLE, Groups, group_regions, root_region
 from slicer.mesh_io import check_size, place_on_platform, repair, separate_bodies
 from slicer.partition import Partition, coarse_partition
+from slicer.plane_refine import ParentFrame, refine_plane, splits_clear
 from slicer.planes import (
-    SAMPLE_SPACING,
     Check,
     PieceContext,
     Plane,
@@ -33,6 +34,7 @@ from slicer.planes import (
     SearchSettings,
     fit_plane,
     search_plane,
+    surface_samples,
     verify_base,
 )
 from slicer.printhead import Printhead
@@ -239,9 +241,11 @@ def _cut_all(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition, groups:
         piece = pieces[pg]
         region = _subtree(groups, g)[face_group[tree.query(piece.triangles_center)[1]]]
         others = [p for k, p in pieces.items() if k != pg]
-        ctx = PieceContext(piece, region, _samples(others, settings.seed), head,
+        ctx = PieceContext(piece, region, surface_samples(others, settings.seed), head,
                            machine.a_limits, settings.seed)
         check, its = _find_plane(ctx, part, face_group, groups, g, pg, settings, rng)
+        check, more = refine_plane(ctx, check, _frame_of(subparts[pg]), settings.search, rng)
+        its += more
         child, rest = split_solid(solids[pg], check.plane, piece, check.child_faces)
         solids[pg], solids[g] = rest, child
         if proxy is mesh:
@@ -252,6 +256,12 @@ def _cut_all(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition, groups:
     for g, s in subparts.items():
         s.mesh = pieces[g] if proxy is mesh else to_trimesh(solids[g])
     return [subparts[g] for g in sorted(subparts)]
+
+
+def _frame_of(parent: Subpart) -> ParentFrame:
+    """How ``parent`` is printed: the root on the platform along +Z, others on their base."""
+    base = parent.base_plane or Plane(np.zeros(3), UP)
+    return ParentFrame(np.asarray(parent.build_direction, dtype=float), base)
 
 
 def _subtree(groups: Groups, g: int) -> np.ndarray:
@@ -269,15 +279,6 @@ def _subtree(groups: Groups, g: int) -> np.ndarray:
     return inside
 
 
-def _samples(meshes: list[trimesh.Trimesh], seed: int) -> np.ndarray:
-    """Surface samples (spacing about :data:`SAMPLE_SPACING`) and vertices of ``meshes``."""
-    out = [np.zeros((0, 3))]
-    for m in meshes:
-        count = max(int(m.area / SAMPLE_SPACING**2), 100)
-        out += [trimesh.sample.sample_surface(m, count, seed=seed)[0], m.vertices]
-    return np.concatenate(out)
-
-
 def _find_plane(ctx: PieceContext, part: Partition, face_group: np.ndarray, groups: Groups,
                 g: int, pg: int, settings: DecomposeSettings, rng: np.random.Generator
                 ) -> tuple[Check, int]:
@@ -293,7 +294,8 @@ def _find_plane(ctx: PieceContext, part: Partition, face_group: np.ndarray, grou
     axis = groups.direction[g] * np.sign(groups.direction[g] @ (centre - lsq.point) or 1.0)
     total, best = 0, None
     for start in (Plane(lsq.point, axis), lsq):
-        check, its = search_plane(ctx, start, settings.search, rng)
+        check, its = search_plane(ctx, start, settings.search, rng,
+                                  functools.partial(splits_clear, ctx))
         total += its
         if check.ok:
             return check, total
@@ -322,7 +324,7 @@ def _verify(subparts: list[Subpart], machine: MachineGeometry, head: Printhead) 
     printed: list[trimesh.Trimesh] = []
     for s in subparts:  # indices are in build order
         if s.base_plane is not None:
-            obstacles = _samples(printed, 0)
+            obstacles = surface_samples(printed, 0)
             problem = verify_base(s.mesh, s.base_plane, obstacles, head, machine.a_limits)
             if problem:
                 where = "[" + ", ".join(f"{x:.1f}" for x in s.base_plane.point) + "]"

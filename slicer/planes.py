@@ -31,6 +31,7 @@ gets there in a few dozen steps where independent perturbations around the start
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -82,6 +83,7 @@ class Check:
     child_faces: np.ndarray = field(repr=False)  # (m,) bool over the piece's faces
     section: shapely.Geometry | None = field(default=None, repr=False)
     tangled: bool = False  # the child's positive side is still joined to parent material
+    start_area: float = 0.0  # base area of the search's first valid plane (the 15 % rule)
 
     @property
     def constraint_i(self) -> bool:
@@ -176,6 +178,12 @@ def evaluate(ctx: PieceContext, plane: Plane) -> Check:
     platform_ok = _platform_clear(ctx.head, plane, section)
     return Check(plane, True, reachable, collisions, platform_ok, float(section.area), child,
                  section)
+
+
+def child_faces(ctx: PieceContext, plane: Plane) -> tuple[np.ndarray, bool]:
+    """The faces of the piece cut off with the child by ``plane``, (m,) bool, and whether
+    the child's positive side is still tangled with parent material (see :func:`evaluate`)."""
+    return _child_faces(ctx, plane.signed(ctx.mesh.vertices))
 
 
 def _child_faces(ctx: PieceContext, h: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -295,7 +303,8 @@ def _pushed_on(best: Check, cand: Check) -> bool:
 
 
 def search_plane(ctx: PieceContext, start: Plane, settings: SearchSettings,
-                 rng: np.random.Generator) -> tuple[Check, int]:
+                 rng: np.random.Generator,
+                 accept: Callable[[Check], bool] | None = None) -> tuple[Check, int]:
     """Local dynamic search from ``start`` until constraints I and II hold.
 
     The search stops at the first feasible plane, after ``settings.max_iterations`` steps,
@@ -313,15 +322,16 @@ def search_plane(ctx: PieceContext, start: Plane, settings: SearchSettings,
     iterations : int
         Perturbations tried.
     """
-    best = evaluate(ctx, start)
+    best = _judged(ctx, start, accept)
     if best.ok:
+        best.start_area = best.area
         return best, 0
     area0 = best.area if best.valid else np.inf
     progress = 0  # last step that lowered the penalty
     for it in range(1, settings.max_iterations + 1):
         if it - progress > settings.stall_window:
             return best, it - 1
-        cand = evaluate(ctx, perturb(best.plane, rng, settings, best))
+        cand = _judged(ctx, perturb(best.plane, rng, settings, best), accept)
         if not cand.valid and not _pushed_on(best, cand):
             continue
         if best.valid and cand.area > (1.0 + settings.area_growth_max) * area0:
@@ -333,8 +343,26 @@ def search_plane(ctx: PieceContext, start: Plane, settings: SearchSettings,
                 progress = it
             best = cand
             if best.ok:
+                best.start_area = area0
                 return best, it
     return best, settings.max_iterations
+
+
+def surface_samples(meshes: list[trimesh.Trimesh], seed: int) -> np.ndarray:
+    """Surface samples (spacing about :data:`SAMPLE_SPACING`) and vertices of ``meshes``."""
+    out = [np.zeros((0, 3))]
+    for m in meshes:
+        count = max(int(m.area / SAMPLE_SPACING**2), 100)
+        out += [trimesh.sample.sample_surface(m, count, seed=seed)[0], m.vertices]
+    return np.concatenate(out)
+
+
+def _judged(ctx: PieceContext, plane: Plane, accept: Callable[[Check], bool] | None) -> Check:
+    """:func:`evaluate`, with a feasible plane that ``accept`` refuses marked as colliding."""
+    check = evaluate(ctx, plane)
+    if check.ok and accept is not None and not accept(check):
+        check.collisions = 1
+    return check
 
 
 def verify_base(child: trimesh.Trimesh, plane: Plane, obstacles: np.ndarray, head: Printhead,

@@ -19,6 +19,9 @@ from scipy.spatial import cKDTree
 from slicer.planes import EPS, PROXY_FACES, PROXY_TOLERANCES, Plane
 from slicer.samples import to_manifold, to_trimesh
 
+HULL_MARGIN = 0.5  # mm: the bounded cutter clears the child's hull by at least this / √3
+VOLUME_RTOL = 1e-6  # the bounded cut must take the child's volume and no more
+
 
 def search_proxy(mesh: trimesh.Trimesh, solid: m3.Manifold) -> trimesh.Trimesh:
     """A coarser copy of ``mesh`` for the plane search (``mesh`` itself when small).
@@ -82,9 +85,28 @@ def split_solid(solid: m3.Manifold, plane: Plane, labels: trimesh.Trimesh,
         (child if np.mean(votes) > 0.5 else rest).append(comp)
     if not child:
         raise ValueError("the plane leaves nothing of the child on its positive side")
-    # the child's components are disjoint; the rest's touch the negative side on the plane
-    whole = rest[0] if len(rest) == 1 else m3.Manifold.batch_boolean(rest, m3.OpType.Add)
-    return m3.Manifold.compose(child) if len(child) > 1 else child[0], whole
+    kid = m3.Manifold.compose(child) if len(child) > 1 else child[0]
+    if len(rest) == 1:
+        return kid, neg
+    return _bounded_cut(solid, kid, plane, offset) or (
+        kid, m3.Manifold.batch_boolean(rest, m3.OpType.Add))
+
+
+def _bounded_cut(solid: m3.Manifold, kid: m3.Manifold, plane: Plane, offset: float
+                 ) -> tuple[m3.Manifold, m3.Manifold] | None:
+    """(child, rest) when the plane also crosses other material: cut by the positive side
+    of the plane within the child's convex hull widened by :data:`HULL_MARGIN`, so child and
+    rest come from two booleans with one cutter. Joining the crossed pieces back onto the
+    negative half instead keeps their touching cut faces inside the rest as a seam (edges of
+    four faces once welded). None when that cutter would take other material too.
+    """
+    pts = np.asarray(kid.to_mesh64().vert_properties)[:, :3]
+    spread = np.vstack([pts + d for d in HULL_MARGIN * np.vstack([np.eye(3), -np.eye(3)])])
+    cutter = m3.Manifold.hull_points(spread).trim_by_plane(plane.normal, offset)
+    child = solid ^ cutter
+    if abs(child.volume() - kid.volume()) > VOLUME_RTOL * kid.volume():
+        return None
+    return child, solid - cutter
 
 
 def split_piece(piece: trimesh.Trimesh, plane: Plane, child_faces: np.ndarray
