@@ -118,7 +118,8 @@ def move_times(start: np.ndarray, end: np.ndarray, feed: np.ndarray, e: np.ndarr
     g : (n,) int
         0 travel, 1 extrusion.
     """
-    delta = np.nan_to_num(end - start, nan=0.0)
+    delta = end - start
+    delta[np.isnan(delta)] = 0.0  # unknown start: no motion counted
     d = delta[:, :3]
     length = np.linalg.norm(d, axis=1)
     turn = np.abs(delta[:, 3:5]).max(axis=1)
@@ -129,20 +130,24 @@ def move_times(start: np.ndarray, end: np.ndarray, feed: np.ndarray, e: np.ndarr
     v_in = np.minimum(vj[:-1], np.sqrt(vj[1:] ** 2 + 2 * a * length))
     v_out = np.minimum(vj[1:], np.sqrt(v_in ** 2 + 2 * a * length))
     t_lin = trapezoid_time(length, v_in, v_out, np.where(v > 0, v, 1.0), a)
-    v_rot = np.where(length > 0, limits.max_rotary_velocity,
-                     np.minimum(feed, limits.max_rotary_velocity))
-    zeros = np.zeros_like(turn)
-    t_rot = trapezoid_time(turn, zeros, zeros, np.where(v_rot > 0, v_rot, 1.0),
-                           limits.max_rotary_accel)
-    e_only = (length == 0) & (turn == 0)
-    t_e = trapezoid_time(np.where(e_only, np.abs(e), 0.0), zeros, zeros,
-                         np.where(feed > 0, feed, 1.0), a)
+    t_rot = np.zeros_like(turn)  # profiles of length 0 take no time: only turns are timed
+    k = np.flatnonzero(turn > 0)
+    v_rot = np.where(length[k] > 0, limits.max_rotary_velocity,
+                     np.minimum(feed[k], limits.max_rotary_velocity))
+    t_rot[k] = trapezoid_time(turn[k], np.zeros(len(k)), np.zeros(len(k)),
+                              np.where(v_rot > 0, v_rot, 1.0), limits.max_rotary_accel)
+    t_e = np.zeros_like(turn)
+    k = np.flatnonzero((length == 0) & (turn == 0) & (e != 0))
+    t_e[k] = trapezoid_time(np.abs(e[k]), np.zeros(len(k)), np.zeros(len(k)),
+                            np.where(feed[k] > 0, feed[k], 1.0), a)
     return np.maximum(t_lin, t_rot) + t_e
 
 
 def deposited(start: np.ndarray, end: np.ndarray, e: np.ndarray) -> np.ndarray:
     """Filament that leaves the nozzle while the axes move (mm per move), (n,)."""
-    moving = np.linalg.norm(np.nan_to_num(end[:, :3] - start[:, :3], nan=0.0), axis=1) > 0
+    step = end[:, :3] - start[:, :3]
+    step[np.isnan(step)] = 0.0
+    moving = np.linalg.norm(step, axis=1) > 0
     return np.where(moving & (e > 0), e, 0.0)
 
 

@@ -21,8 +21,9 @@ import numpy as np
 
 from kinematics.linearize import linearize_move
 from kinematics.machine import MachineGeometry
-from kinematics.transform import forward, inverse, table_rotation
+from kinematics.transform import inverse, table_rotation
 from slicer.estimate import Estimate, MotionLimits, estimate_program
+from slicer.extrusions import Extrusions, joint_poses
 from slicer.gcode_program import AC_DECIMALS, XYZ_DECIMALS, MoveWords, Program
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
 from slicer.printhead import Printhead
@@ -92,47 +93,6 @@ def path_extrusion(path: Path, area: float) -> tuple[np.ndarray, np.ndarray]:
     return ext.points, ext.e[1:]
 
 
-@dataclass(frozen=True)
-class Extrusions:
-    """Paths as one run of print-order vertices (closed paths return to their start).
-
-    Attributes
-    ----------
-    points : (N, 3) float
-        Vertices of every path, path after path.
-    e : (N,) float
-        mm of filament of the segment ending at each vertex (0 at a path's first vertex).
-    start : (P + 1,) int
-        Path j's vertices are ``start[j]:start[j + 1]``.
-    """
-
-    points: np.ndarray
-    e: np.ndarray
-    start: np.ndarray
-
-    @classmethod
-    def of(cls, paths: Sequence[Path], area: float) -> Extrusions:
-        """``E = w · (h0 + h1)/2 · L · flow / area`` per segment, for all paths at once."""
-        raw = [np.asarray(p.points, dtype=float).reshape(-1, 3) for p in paths]
-        n = np.array([len(r) for r in raw], dtype=np.int64)
-        if not n.sum():
-            return cls(np.zeros((0, 3)), np.zeros(0), np.zeros(len(paths) + 1, dtype=np.int64))
-        h = np.concatenate([np.broadcast_to(np.asarray(p.height, dtype=float), (len(r),))
-                            for p, r in zip(paths, raw, strict=True)])
-        close = np.array([p.closed for p in paths]) & (n > 2)
-        m = n + close
-        start, first = np.r_[0, np.cumsum(m)], np.r_[0, np.cumsum(n)]
-        idx = np.arange(start[-1]) - np.repeat(start[:-1] - first[:-1], m)
-        idx[start[1:][close] - 1] = first[:-1][close]
-        pts, h = np.concatenate(raw)[idx], h[idx]
-        length = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-        w = np.repeat([p.width for p in paths], m)[1:]
-        flow = np.repeat([p.flow for p in paths], m)[1:]
-        e = np.r_[0.0, w * 0.5 * (h[:-1] + h[1:]) * length * flow / area]
-        e[start[:-1][m > 0]] = 0.0
-        return cls(pts, e, start)
-
-
 class _Writer:
     """Walks the plan in order and fills a :class:`Program`."""
 
@@ -145,7 +105,7 @@ class _Writer:
         self.area = filament_area(settings)
         layers = [la for sp in plan.subparts for la in sp.layers]
         self.ext = Extrusions.of([p for la in layers for p in la.paths], self.area)
-        self.poses = _joint_poses(self.ext, layers, machine.geometry)
+        self.poses = joint_poses(self.ext, layers, machine.geometry)
         self.next_path = 0
         self.hull = obstacle_hull(_all_points(plan))
         self.rim = platform_rim(machine.platform_radius)
@@ -179,7 +139,7 @@ class _Writer:
             self.retract()
             if cur[2] < lift - 1e-9:
                 self.travel(np.array([cur[0], cur[1], lift]))
-            if not np.allclose(cur[:2], target[:2], atol=1e-9):
+            if not _close_xy(cur, target):
                 self.travel(np.array([target[0], target[1], lift]))
             self.travel(target)
             self.unretract()
@@ -258,16 +218,6 @@ class _Writer:
         return max(z, float(self.prog.pose[2]))
 
 
-def _joint_poses(ext: Extrusions, layers: Sequence[Layer], geometry: MachineGeometry
-                 ) -> np.ndarray:
-    """Joint pose [X, Y, Z, A, C] of every vertex of ``ext`` at its layer's angles, (N, 5)."""
-    first_path = np.r_[0, np.cumsum([len(la.paths) for la in layers], dtype=np.int64)]
-    per_layer = np.diff(ext.start[first_path])
-    a = np.repeat([la.a for la in layers], per_layer)
-    c = np.repeat([la.c for la in layers], per_layer)
-    return np.column_stack([forward(ext.points, a, c, geometry), a, c])
-
-
 def _json(obj: object) -> str:
     return json.dumps(obj, separators=(", ", ": "))
 
@@ -275,6 +225,11 @@ def _json(obj: object) -> str:
 def _nozzle_axis(a: float, c: float) -> np.ndarray:
     """Machine +Z in the platform frame at table angles (a, c), (3,)."""
     return table_rotation(a, c).T @ np.array([0.0, 0.0, 1.0])
+
+
+def _close_xy(a: np.ndarray, b: np.ndarray) -> bool:
+    """``np.allclose(a[:2], b[:2], atol=1e-9)`` for two points, without its overhead."""
+    return bool(np.all(np.abs(a[:2] - b[:2]) <= 1e-9 + 1e-5 * np.abs(b[:2])))
 
 
 def _same_angles(pose: np.ndarray, a: float, c: float) -> bool:

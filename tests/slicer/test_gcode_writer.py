@@ -11,6 +11,7 @@ from handmade_plans import H, W, box_plan, two_part_plan
 
 from kinematics.machine import MachineGeometry
 from kinematics.transform import forward, inverse
+from slicer.extrusions import forward_at
 from slicer.gcode import MachineSetup, generate, path_extrusion
 from slicer.gcode_format import DECIMALS, format_moves, format_moves_reference
 from slicer.gcode_reader import parse_lines, parse_words
@@ -216,3 +217,10 @@ def test_written_lines_are_the_reference_text_of_the_moves(two_part):
     for item in res.words():
         expected += [item] if isinstance(item, str) else format_moves_reference(*item)
     assert res.lines == expected
+
+
+def test_joint_positions_at_one_pose_are_the_kinematics_forward():
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-80.0, 80.0, (500, 3))
+    for a, c in ((0.0, 0.0), (37.5, -212.25), (-90.0, 719.0)):
+        assert np.array_equal(forward_at(pts, a, c, GEO), forward(pts, a, c, GEO))
