@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slicer.replay_unique import sorted_unique
+
 _JITTER = np.array([1.234567e-7, 2.345678e-7])  # moves grid lines off axis-aligned edges
 
 
@@ -130,7 +132,7 @@ def volume_grid(tris: np.ndarray, pitch: float) -> np.ndarray:
     grid = ColumnGrid.build(tris, pitch)
     lo, hi = tris.reshape(-1, 3).min(axis=0), tris.reshape(-1, 3).max(axis=0)
     zs = np.arange(lo[2] + pitch / 2, hi[2], pitch)
-    cols = np.unique(np.floor((grid.key) / grid.span).astype(np.int64))
+    cols = sorted_unique(np.floor(grid.key / grid.span).astype(np.int64))
     qcol = np.repeat(cols, len(zs))
     qz = np.tile(zs, len(cols))
     mask = grid.crossings_above(qcol, qz) % 2 == 1

@@ -21,6 +21,7 @@ import numpy as np
 
 from slicer.replay_columns import ColumnGrid
 from slicer.replay_kdtree import point_tree
+from slicer.replay_unique import sorted_unique
 
 SURFACE_COVER = 0.15  # mm: every surface point lies this close to a surface sample
 INSIDE_PITCH = 0.05  # mm: default spacing of the vertical lines of the inside test
@@ -48,13 +49,18 @@ def triangle_d2(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> n
     sden = np.where(good, den, 1.0)
     v = (d11 * d20 - d01 * d21) / sden
     w = (d00 * d21 - d01 * d20) / sden
-    interior = good & (v >= 0) & (w >= 0) & (v + w <= 1)
-    n = np.cross(ab, ac)
+    interior = np.flatnonzero(good & (v >= 0) & (w >= 0) & (v + w <= 1))
+    n = np.cross(ab[interior], ac[interior])
     nn = np.einsum("ij,ij->i", n, n)
-    plane = np.einsum("ij,ij->i", ap, n) ** 2 / np.where(nn > 0, nn, 1.0)
-    edges = np.minimum(np.minimum(_segment_d2(p, a, b), _segment_d2(p, b, c)),
-                       _segment_d2(p, c, a))
-    return np.where(interior, plane, edges)
+    out = np.empty(len(p))
+    out[interior] = (np.einsum("ij,ij->i", ap[interior], n) ** 2
+                     / np.where(nn > 0, nn, 1.0))
+    rim = np.ones(len(p), dtype=bool)
+    rim[interior] = False
+    pr, ar, br, cr = p[rim], a[rim], b[rim], c[rim]
+    out[rim] = np.minimum(np.minimum(_segment_d2(pr, ar, br), _segment_d2(pr, br, cr)),
+                          _segment_d2(pr, cr, ar))
+    return out
 
 
 def surface_samples(tris: np.ndarray, cover: float) -> tuple[np.ndarray, np.ndarray]:
@@ -158,7 +164,7 @@ class ModelIndex:
             return out
         pi = np.repeat(np.arange(len(p)), counts)
         ti = self._owner[np.concatenate([np.asarray(x, dtype=np.int64) for x in near])]
-        pair = np.unique(pi * len(self.tris) + ti)
+        pair = sorted_unique(pi * len(self.tris) + ti)
         pi, ti = pair // len(self.tris), pair % len(self.tris)
         t = self.tris[ti]
         d2 = triangle_d2(p[pi], t[:, 0], t[:, 1], t[:, 2])

@@ -16,6 +16,7 @@ beneath it, *bridges over sparse infill*: reported apart, and not counted as an 
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -42,21 +43,27 @@ def _check(s: Samples, top: np.ndarray, below: np.ndarray, dmax: np.ndarray,
     """Which (top, below) pairs put ``below``'s bead in the support cone of ``top``.
 
     The material of ``below`` is its piece of bead centreline ``q + τ · step`` (|τ| ≤ 1/2);
-    the point of it tested is the one laterally nearest to ``top``'s nozzle axis.
+    the point of it tested is the one laterally nearest to ``top``'s nozzle axis. All in
+    dot products of ``rel = p − q``, ``step`` and the unit axis ``u``: across the axis,
+    ``rel`` and ``step`` have the dot product ``rel·step − (rel·u)(step·u)`` and ``step``
+    the squared length ``step·step − (step·u)²``.
     """
     u = s.u[top]
     rel = s.p[top] - s.p[below]
     step = s.step[below]
-    flat_rel = rel - np.einsum("ij,ij->i", rel, u)[:, None] * u
-    flat_step = step - np.einsum("ij,ij->i", step, u)[:, None] * u
-    den = np.einsum("ij,ij->i", flat_step, flat_step)
-    tau = np.clip(np.einsum("ij,ij->i", flat_rel, flat_step) / np.where(den > 0, den, 1.0),
-                  -0.5, 0.5)
-    rel = rel - tau[:, None] * step
-    d = np.einsum("ij,ij->i", rel, u)
-    lat = np.linalg.norm(rel - d[:, None] * u, axis=1)
-    tan = math.tan(math.radians(OVERHANG_DEG))
-    return (s.seq[below] < s.seq[top]) & (d > 0) & (d <= dmax[top]) & (lat <= d * tan + slack)
+    along, step_along = _dot(rel, u), _dot(step, u)
+    rel_step, step_step = _dot(rel, step), _dot(step, step)
+    den = step_step - step_along * step_along
+    tau = np.clip((rel_step - along * step_along) / np.where(den > 0, den, 1.0), -0.5, 0.5)
+    d = along - tau * step_along
+    lat2 = _dot(rel, rel) - 2.0 * tau * rel_step + tau * tau * step_step - d * d
+    reach = d * math.tan(math.radians(OVERHANG_DEG)) + slack
+    return (s.seq[below] < s.seq[top]) & (d > 0) & (d <= dmax[top]) & (lat2 <= reach * reach)
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise dot products of (n, 3) arrays, (n,)."""
+    return np.einsum("ij,ij->i", a, b)
 
 
 def platform_support(s: Samples, dmax: np.ndarray, radius: float, slack: float) -> np.ndarray:
@@ -105,21 +112,23 @@ def bridged(s: Samples, candidates: np.ndarray, layer_height: float, line_width:
     if infill_density <= 0 or not candidates.any():
         return out
     reach = 0.5 * line_width / infill_density + line_width
-    dmax = depth_limit(s, layer_height)
     order = np.argsort(s.seq, kind="stable")
     seq_sorted = s.seq[order]
-    for layer in np.unique(s.seq[candidates]):
-        lo, hi = np.searchsorted(seq_sorted, [layer - 1, layer])
-        if hi <= lo:
-            continue
-        prev = order[lo:hi]
-        idx = np.flatnonzero(candidates & (s.seq == layer))
-        _, near = point_tree(s.p[prev]).query(s.p[idx])
-        q = prev[near]
-        rel = s.p[idx] - s.p[q]
-        d = np.einsum("ij,ij->i", rel, s.u[idx])
-        lat = np.linalg.norm(rel - d[:, None] * s.u[idx], axis=1)
-        out[idx] = (d > 0) & (d <= dmax[idx]) & (lat <= reach)
+    cand = np.flatnonzero(candidates)
+    cand = cand[np.argsort(s.seq[cand], kind="stable")]
+    cuts = np.flatnonzero(np.r_[True, s.seq[cand][1:] != s.seq[cand][:-1], True])
+    top, below = [np.zeros(0, dtype=np.intp)], [np.zeros(0, dtype=np.intp)]
+    for lo, hi in itertools.pairwise(cuts):  # candidates of one layer, over the one before
+        a, b = np.searchsorted(seq_sorted, [s.seq[cand[lo]] - 1, s.seq[cand[lo]]])
+        if b > a:
+            prev = order[a:b]
+            top.append(cand[lo:hi])
+            below.append(prev[point_tree(s.p[prev]).query(s.p[cand[lo:hi]])[1]])
+    idx, q = np.concatenate(top), np.concatenate(below)
+    rel = s.p[idx] - s.p[q]
+    d = np.einsum("ij,ij->i", rel, s.u[idx])
+    lat = np.linalg.norm(rel - d[:, None] * s.u[idx], axis=1)
+    out[idx] = (d > 0) & (d <= depth_limit(s, layer_height)[idx]) & (lat <= reach)
     return out
 
 
