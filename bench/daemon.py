@@ -6,7 +6,8 @@ wire carries 25000 bytes/s each way), so the daemon's CPU share is its own: link
 job manager, control server. The line rate is printed beside the wire limit for this job's
 lines (25000 bytes/s over the mean framed line), and the CPU both as a share of a core at that
 rate and as CPU milliseconds per 1000 lines. ``--in-process`` uses ``sim://`` instead
-(emulator inside the daemon: the old, upper-bound figure). ``--profile FILE`` runs the daemon under cProfile and writes its stats.
+(emulator inside the daemon: the old, upper-bound figure). ``--profile FILE`` runs the daemon
+under cProfile and writes its stats.
 
 It measures RSS when idle, then streams a G-code job and measures the CPU shares and
 ``printer.status`` round trips of a client polling at ~20 Hz meanwhile.

@@ -52,20 +52,17 @@ class InFlight:
         self.bytes += len(sent.item.data)
         self.lines += 1
 
-    def beyond(self, skip: int) -> tuple[int, int]:
-        """Lines and bytes holding credit, leaving out the oldest ``skip`` of them."""
-        if skip <= 0:
-            return self.lines, self.bytes
-        lines = nbytes = 0
-        for sent in self._entries:
-            if not sent.counted:
-                continue
-            if skip > 0:
-                skip -= 1
-                continue
-            lines += 1
-            nbytes += len(sent.item.data)
-        return lines, nbytes
+    def after_first(self, number: int) -> tuple[int, int]:
+        """Lines and bytes holding credit after the first transmission of line ``number``.
+
+        Everything up to that transmission is known to have left the firmware's receive
+        buffer; without such a transmission nothing is left out.
+        """
+        for i, sent in enumerate(self._entries):
+            if sent.number == number:
+                rest = [s for s in self._entries[i + 1:] if s.counted]
+                return len(rest), sum(len(s.item.data) for s in rest)
+        return self.lines, self.bytes
 
     def first_from(self, number: int) -> Sent | None:
         """The oldest transmission of a line numbered ``number`` or higher."""

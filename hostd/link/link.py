@@ -137,7 +137,9 @@ class SerialLink:
         """Send ``lines`` in order and yield the input index of each line as it is acked.
 
         Comments and blank lines are skipped when ``strip`` (their indices are never
-        yielded). At most ``settings.max_queued`` lines are submitted ahead of the acks.
+        yielded). At most ``settings.max_queued`` lines are submitted ahead of the acks; when
+        that many are out, the stream sleeps until a quarter of them are acknowledged (one
+        wake-up per batch, not per ``ok``) and yields their indices.
 
         Raises
         ------
@@ -147,17 +149,21 @@ class SerialLink:
         """
         ahead: deque[tuple[int, asyncio.Future[int]]] = deque()
         last: int | None = None
+        limit = self.settings.max_queued
         try:
             for index, raw in enumerate(lines):
                 command = strip_gcode(raw) if strip else raw.strip()
                 if not command:
                     continue
                 ahead.append((index, self.submit(command)))
-                while len(ahead) >= self.settings.max_queued:
-                    last = await _first(ahead)
-                    yield last
+                if len(ahead) >= limit:
+                    await _settled(ahead, len(ahead) - limit + max(1, limit // 4))
+                    while ahead and ahead[0][1].done():
+                        last = _pop_acked(ahead)
+                        yield last
             while ahead:
-                last = await _first(ahead)
+                await _settled(ahead, 1)
+                last = _pop_acked(ahead)
                 yield last
         except errors.LinkError as err:
             cause = _first_failure(ahead) or err
@@ -306,9 +312,17 @@ class SerialLink:
             return
 
 
-async def _first(ahead: deque[tuple[int, asyncio.Future[int]]]) -> int:
+async def _settled(ahead: deque[tuple[int, asyncio.Future[int]]], count: int) -> None:
+    """Wait until the first ``count`` lines of ``ahead`` are acknowledged or failed."""
+    fut = ahead[min(count, len(ahead)) - 1][1]
+    if not fut.done():
+        await asyncio.wait((fut,))
+
+
+def _pop_acked(ahead: deque[tuple[int, asyncio.Future[int]]]) -> int:
+    """The input index of the (done) head line; raises its error if it failed."""
     index, fut = ahead[0]
-    await fut
+    fut.result()
     ahead.popleft()
     return index
 

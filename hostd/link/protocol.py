@@ -19,6 +19,17 @@ rejects (bad checksum, wrong number) is answered at once, out of order, by ``Err
 - window credit is the bytes of transmissions not yet answered: a success ``ok`` frees every
   transmission of the lines it executed, an error ``ok`` the oldest transmission at or after
   ``k`` (the one rejected), and after a whole timeout of silence all credit is released;
+- with ADVANCED_OK, lines waiting in the firmware's command queue no longer use its receive
+  buffer. Marlin sends ``ok N<k> P<p> B<b>`` after processing line ``k`` while ``k`` still
+  holds its queue slot, so ``BUFSIZE - b`` slots hold ``k`` and the ``BUFSIZE - b - 1`` lines
+  after it. The host does not know ``BUFSIZE``; the largest ``B`` seen on such an ``ok`` is at
+  most ``BUFSIZE - 1``, so ``k + max B - b`` never exceeds the last line the main loop has
+  read out of the receive buffer. The receive buffer is a FIFO, so every transmission up to
+  the first transmission of that line has left it too (the accepted one is that one or a
+  later one). That bound only grows: between two ``ok`` s the firmware can only read more,
+  so a stale bound errs on the safe side. Error ``ok`` s (their fields, when old firmware
+  adds any, describe no processed line) and plain ``ok`` s teach nothing, and without
+  ADVANCED_OK the credit stays within the receive buffer alone;
 - on a timeout the next line (or a numbered ``M105``) is sent as a nudge; a second timeout
   without any ``ok`` declares the link lost.
 """
@@ -142,6 +153,11 @@ class Protocol:
         return self._flush()
 
     @property
+    def inflight_bytes(self) -> int:
+        """Bytes of the transmissions not yet answered that still hold credit."""
+        return self._inflight.bytes
+
+    @property
     def last_acked(self) -> int:
         """The highest submission number acknowledged on this connection (0 if none)."""
         return self._acked
@@ -158,7 +174,7 @@ class Protocol:
             "window_bytes": self.window.size if self.window.mode == "window" else 0,
             "flow_control": self.window.mode,
             "inflight_lines": self._inflight.lines,
-            "inflight_bytes": self._inflight.bytes,
+            "inflight_bytes": self.inflight_bytes,
             "queued_lines": len(self._pending) + len(self._resend),
             "ok_rtt": self.rtt.as_dict(),
         }
@@ -186,8 +202,8 @@ class Protocol:
         self._resend_counts: dict[int, int] = {}
         self._since_ok: list[Reply] = []
         self._m105: deque[int] = deque()  # M105 transmissions awaiting their ok T:
-        self._slots_seen = 0  # largest ADVANCED_OK B: the firmware's command queue size
-        self._queued_in_firmware = 0  # oldest lines in flight known to sit in that queue
+        self._slots_seen = 0  # largest B of a success ok: at most BUFSIZE - 1
+        self._read_through = 0  # lines up to this one have left the firmware's receive buffer
         self.window = SendWindow(self.settings.flow_control, self.settings.rx_buffer_bytes)
 
     def _restart(self, now: float) -> None:
@@ -224,7 +240,10 @@ class Protocol:
                 return
             item = queue[0]
             size = len(item.data) if item.data else len(item.command) + 12
-            lines, nbytes = self._inflight.beyond(self._queued_in_firmware)
+            if self._read_through > self._executed:
+                lines, nbytes = self._inflight.after_first(self._read_through)
+            else:
+                lines, nbytes = self._inflight.lines, self._inflight.bytes
             if not self.window.fits(lines, nbytes, size):
                 return
             queue.popleft()
@@ -257,30 +276,25 @@ class Protocol:
         if self.state == "handshake":
             self._handshake_ok(now)
             return
-        self._note_queue(ok)
         if self._after_resend is not None:
             rejected = self._inflight.first_from(self._after_resend)
             self._after_resend = None
             if rejected is not None:
                 self._inflight.remove(rejected)
             return
+        if ok.line is not None and ok.buffer_free is not None:
+            self._note_queue(ok.line, ok.buffer_free)
         line = self._executed_by(ok)
         if line <= self._executed:
             return
         self._execute_through(line, ok, now)
 
-    def _note_queue(self, ok: Ok) -> None:
-        """ADVANCED_OK: lines waiting in the command queue no longer use the receive buffer.
-
-        At the ``ok``, ``B`` slots are free, so ``max B - B`` of the oldest unexecuted lines
-        are in the queue; until the next ``ok`` that can only grow (lines move from the
-        receive buffer into the queue), so leaving them out of the credit stays safe.
-        """
-        if ok.buffer_free is None:
-            self._queued_in_firmware = 0
-            return
-        self._slots_seen = max(self._slots_seen, ok.buffer_free)
-        self._queued_in_firmware = self._slots_seen - ok.buffer_free
+    def _note_queue(self, line: int, free: int) -> None:
+        """ADVANCED_OK ``ok N<line> B<free>``: see the module docstring for why it is sound."""
+        self._slots_seen = max(self._slots_seen, free)
+        # never beyond the lines sent: a later first transmission would be counted as read
+        queued = min(line + self._slots_seen - free, self._sent_max)
+        self._read_through = max(self._read_through, queued)
 
     def _executed_by(self, ok: Ok) -> int:
         """The line number this success ``ok`` shows executed."""
@@ -441,7 +455,6 @@ class Protocol:
         # flight no longer hold credit. A line being resent is the tickle it waits for;
         # otherwise a numbered M105, whose ``ok T:`` also resynchronises the ok count.
         self._inflight.uncount()
-        self._queued_in_firmware = 0
         self._m105.clear()
         if not self._resend:
             self._transmit(Item(NUDGE, None, "nudge"), now)

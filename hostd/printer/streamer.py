@@ -150,10 +150,17 @@ class Streamer:
         return "completed"
 
     async def _feed(self, index: int) -> None:
+        """Submit command ``index``; when ``lookahead`` lines are out, sleep until a quarter
+        of them are acknowledged (one wake-up per batch, not per ``ok``), then take note of
+        every acknowledged line."""
         fut = await self.port.send(self.program.commands[index])
-        self._inflight.append((index, fut))
-        while self._inflight and (len(self._inflight) > self.settings.lookahead
-                                  or _done(self._inflight[0][1])):
+        inflight = self._inflight
+        inflight.append((index, fut))
+        excess = len(inflight) - self.settings.lookahead
+        if excess > 0:
+            batch = max(1, self.settings.lookahead // 4)
+            await _settled(inflight[excess + batch - 2][1])
+        while inflight and _done(inflight[0][1]):
             await self._ack_head()
 
     async def _ack_head(self) -> None:
@@ -293,6 +300,12 @@ class Streamer:
 
 def _done(fut: Awaitable[None]) -> bool:
     return isinstance(fut, asyncio.Future) and fut.done()
+
+
+async def _settled(fut: Awaitable[None]) -> None:
+    """Wait until ``fut`` is done, whether it succeeded or failed (its owner reads it)."""
+    if not _done(fut):
+        await asyncio.wait((asyncio.ensure_future(fut),))
 
 
 def _position(replies: tuple[Reply, ...]) -> dict[str, float]:

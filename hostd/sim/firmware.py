@@ -4,6 +4,15 @@ command queue, ``ok``/``Resend`` replies, busy keepalive, autoreport and fault i
 Pure apart from the seeded random faults: bytes go in with :meth:`Firmware.receive`, time
 moves with :meth:`Firmware.advance` / :meth:`Firmware.settle`, replies come out of
 :meth:`Firmware.take_output`. Every executed command is appended to :attr:`Firmware.log`.
+
+The input path is Marlin's: the serial interrupt puts bytes into the receive ring
+(``RX_BUFFER_SIZE``; when it is full, arriving bytes are silently lost); the main loop
+(``get_serial_commands``, also called from ``idle()`` while a command blocks) moves them into
+its line buffer and each complete line into the command queue (``BUFSIZE`` slots) as long as
+the queue has a free slot, and stops reading while it is full. A command's ``ok`` is sent once
+it has been processed, while it still holds its slot: with ADVANCED_OK it reads
+``ok N<its line> P<free planner blocks> B<BUFSIZE - queued commands>``. A rejected line is
+answered by ``Error:…``, ``Resend: <last+1>`` and a bare ``ok``.
 """
 
 from __future__ import annotations
@@ -60,6 +69,7 @@ class Firmware:
         self.boots += 1
         self.machine = Machine(self.settings)
         self.rx = bytearray()
+        self._line = bytearray()
         self._isr_line = bytearray()
         self.queue: deque[Command] = deque()
         self.last_n = 0
@@ -67,6 +77,7 @@ class Firmware:
         self.halted = False
         self.silence_left = 0
         self.busy_until = 0.0
+        self.read_at = 0.0  # the main loop reads the receive buffer again from then on
         self._busy_report_at: float | None = None
         self._autoreport_at: float | None = None
         self._out += ["start", f"echo:{FIRMWARE_NAME}", "echo: Free Memory: 4096"]
@@ -82,7 +93,7 @@ class Firmware:
     # -- input --------------------------------------------------------------------------
 
     def receive(self, data: bytes) -> None:
-        """Bytes arriving now; what does not fit into the receive buffer is lost."""
+        """Bytes arriving now, in order (see the module docstring for where they go)."""
         if self.halted:
             return
         start = 0
@@ -97,16 +108,35 @@ class Firmware:
         self._emergency_parser(chunk)
         if self.halted:
             return
-        if len(self.queue) < self.settings.queue_slots and b"\n" not in self.rx:
-            # The main loop is reading: bytes flow on into its line buffer as they arrive.
-            room = max(self.settings.rx_buffer_bytes, 96 + len(self.rx))
-        else:
-            room = self.settings.rx_buffer_bytes - len(self.rx)
+        if not self.rx and self._reading():
+            # The main loop is reading: the bytes go on into its line buffer as they come.
+            self._read_line_bytes(chunk)
+            return
+        room = max(self.settings.rx_buffer_bytes - len(self.rx), 0)
         if len(chunk) > room:
-            self.dropped_bytes += len(chunk) - max(room, 0)
-            chunk = chunk[:max(room, 0)]
+            self.dropped_bytes += len(chunk) - room
+            chunk = chunk[:room]
         self.rx += chunk
         self.rx_high_water = max(self.rx_high_water, len(self.rx))
+
+    def _read_serial(self) -> None:
+        """The main loop drains the receive ring while the command queue has a free slot."""
+        while self.rx and self._reading() and not self.halted:
+            end = self.rx.find(b"\n")
+            end = len(self.rx) if end < 0 else end + 1
+            chunk = bytes(self.rx[:end])
+            del self.rx[:end]
+            self._read_line_bytes(chunk)
+
+    def _reading(self) -> bool:
+        """Whether the main loop takes bytes out of the receive buffer now."""
+        return len(self.queue) < self.settings.queue_slots and self.now >= self.read_at
+
+    def _read_line_bytes(self, chunk: bytes) -> None:
+        self._line += chunk
+        if self._line.endswith(b"\n"):
+            line, self._line = bytes(self._line[:-1]), bytearray()
+            self._accept(line)
 
     def _emergency_parser(self, chunk: bytes) -> None:
         self._isr_line += chunk
@@ -120,6 +150,7 @@ class Firmware:
         self.halted = True
         self.queue.clear()
         self.rx.clear()
+        self._line.clear()
         self.log.append((None, "M112"))
         self._out.append(HALT_MESSAGE)
 
@@ -139,9 +170,10 @@ class Firmware:
         self.service()
 
     def settle(self, limit: int = 100_000) -> None:
-        """Fast mode: jump simulated time until the command queue is empty (or stuck)."""
+        """Fast mode: jump simulated time until the command queue and the receive buffer are
+        empty (or stuck)."""
         for _ in range(limit):
-            if not self.queue or self.halted:
+            if (not self.queue and not self.rx) or self.halted:
                 return
             event = self.next_event()
             if event is None:
@@ -154,6 +186,8 @@ class Firmware:
         head = self._head_ready()
         if head is not None:
             times.append(head)
+        if self.rx and self.now < self.read_at and not self.halted:
+            times.append(self.read_at)
         return min(times) if times else None
 
     def _head_ready(self) -> float | None:
@@ -180,13 +214,9 @@ class Firmware:
     # -- the main loop ------------------------------------------------------------------
 
     def service(self) -> None:
-        """Move complete lines into the queue and run commands, at the current time."""
+        """Read complete lines into the queue and run commands, at the current time."""
         while not self.halted:
-            while len(self.queue) < self.settings.queue_slots and b"\n" in self.rx:
-                end = self.rx.index(b"\n")
-                line = bytes(self.rx[:end])
-                del self.rx[:end + 1]
-                self._accept(line)
+            self._read_serial()
             if not self._run_head():
                 return
 
@@ -237,17 +267,15 @@ class Firmware:
     def _reject(self, message: str) -> None:
         self._out.append(f"Error:{message}, Last Line: {self.last_n}")
         self._out.append(f"Resend: {self.last_n + 1}")
-        self._ok(None)
+        self._ok("ok")
 
     def _ok(self, text: str | None) -> None:
         if self.faults.lose_ok():
             return
-        if text is None and self.settings.advanced_ok:
-            head = self.queue[0].number if self.queue else None
-            text = self._advanced_ok(head)
         self._out.append(text or "ok")
 
     def _advanced_ok(self, number: int | None) -> str:
+        """The ADVANCED_OK line of the command being processed (it still holds its slot)."""
         planner = self.machine.planner.free(self.now) - 1
         slots = self.settings.queue_slots - len(self.queue)
         n = f" N{number}" if number is not None else ""
@@ -279,14 +307,14 @@ class Firmware:
 
     def _complete(self, cmd: Command) -> None:
         lines, ok_text = self.machine.finish(cmd, self.now)
-        self.queue.popleft()
         self._busy_report_at = None
         self.log.append((cmd.number, cmd.text))
         self._out.extend(lines)
         if self.settings.advanced_ok and ok_text is None:
-            self._ok(self._advanced_ok(cmd.number))
-        else:
-            self._ok(ok_text)
+            ok_text = self._advanced_ok(cmd.number)
+        self.queue.popleft()
+        self._ok(ok_text)
+        self.read_at = self.now + self.settings.read_delay
         self.busy_until = self.now + self.faults.busy_for()
         if cmd.number is not None and cmd.number > 0:
             self.executed += 1

@@ -28,6 +28,9 @@ class SimSettings:
         Limit both wire directions to baud/10 bytes per second of wall time.
     advanced_ok
         Answer ``ok N<n> P<p> B<b>`` instead of a bare ``ok``.
+    read_delay
+        Simulated seconds the main loop spends elsewhere (display, heaters) after each
+        command before it reads the receive buffer again; bytes arriving meanwhile wait there.
     busy_interval
         Simulated seconds between ``echo:busy: processing`` while a command waits.
     bit_flip_prob
@@ -57,6 +60,7 @@ class SimSettings:
     time_scale: float = 1.0
     throttle: bool = False
     advanced_ok: bool = False
+    read_delay: float = 0.0
     busy_interval: float = 2.0
     bit_flip_prob: float = 0.0
     lost_ok_prob: float = 0.0

@@ -31,6 +31,7 @@ class Outcome:
     ack_ahead_of_execution: list[tuple[int, int]] = field(default_factory=list)
     sent: list[bytes] = field(default_factory=list)
     end_time: float = 0.0
+    max_inflight_bytes: int = 0  # most unanswered bytes the host had out at once
 
 
 class VirtualBench:
@@ -60,6 +61,8 @@ class VirtualBench:
         for action in actions:
             if isinstance(action, Write):
                 self.outcome.sent.append(action.data)
+                self.outcome.max_inflight_bytes = max(self.outcome.max_inflight_bytes,
+                                                      self.protocol.inflight_bytes)
                 self._fw_clear = max(self._fw_clear, self.now) + 1e-9
                 self._push(self._fw_clear + self.latency, "fw", action.data)
             elif isinstance(action, Acked):

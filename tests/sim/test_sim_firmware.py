@@ -73,7 +73,7 @@ def test_m109_waits_with_busy_keepalive_until_the_heater_is_hot() -> None:
 
 def test_advanced_ok_reports_line_planner_and_queue() -> None:
     fw = board(advanced_ok=True)
-    assert send(fw, 1, "G1 X1") == ["ok N1 P14 B4"]
+    assert send(fw, 1, "G1 X1") == ["ok N1 P14 B3"]  # the G1 still holds its slot
 
 
 def test_lost_step_on_a_drifts_after_the_given_move() -> None:
