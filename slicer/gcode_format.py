@@ -32,16 +32,18 @@ def _digits(ints: np.ndarray, count: int) -> np.ndarray:
 
     Returns
     -------
-    (n, count) uint8
+    (count, n) uint8
+        Row j holds the j-th digit of every number.
     """
     small = len(ints) == 0 or int(ints.max()) < 2**31  # int32 division by 10 is the fastest
     rest = ints.astype(np.int32 if small else np.int64)
-    out = np.empty((len(ints), count), dtype=np.uint8)
+    out = np.empty((count, len(ints)), dtype=np.uint8)
     for j in range(count - 1, -1, -1):
         q = rest // 10
-        out[:, j] = rest - q * 10
+        out[j] = rest - q * 10
         rest = q
-    return out + np.uint8(ord("0"))
+    out += np.uint8(ord("0"))
+    return out
 
 
 def _number(values: np.ndarray, decimals: int) -> np.ndarray:
@@ -58,20 +60,20 @@ def _number(values: np.ndarray, decimals: int) -> np.ndarray:
     (n, w) uint8
         Characters of each number, right-aligned, padded on the left with blanks (0).
     """
+    n = len(values)
     scaled = np.rint(np.abs(values) * 10.0**decimals).astype(np.int64)
     whole = scaled // 10**decimals
     width = len(str(int(whole.max())))
-    length = 1 + np.searchsorted(10 ** np.arange(1, width, dtype=np.int64), whole,
-                                 side="right")
-    out = np.zeros((len(values), width + 1 + (decimals > 0) + decimals), dtype=np.uint8)
+    lead = np.full(n, width - 1)  # blank cells left of the whole part (it has ≥ 1 digit)
+    for j in range(1, width):
+        lead -= whole >= 10**j
     digits = _digits(scaled, width + decimals)
-    out[:, 1:width + 1] = digits[:, :width]
-    lead = width - length  # blank cells left of the whole part; the sign goes in the last
-    out[:, 1:width + 1][np.arange(width)[None, :] < lead[:, None]] = _BLANK
-    out[np.arange(len(values)), lead] = np.where(np.signbit(values), ord("-"), _BLANK)
+    out = np.zeros((n, width + 1 + (decimals > 0) + decimals), dtype=np.uint8)
+    out[:, 1:width + 1] = (digits[:width] * (np.arange(width)[:, None] >= lead)).T
+    out[np.arange(n), lead] = np.where(np.signbit(values), ord("-"), _BLANK)
     if decimals:
         out[:, width + 1] = ord(".")
-        out[:, width + 2:] = digits[:, width:]
+        out[:, width + 2:] = digits[width:].T
     return out
 
 
@@ -98,17 +100,27 @@ def format_moves(vals: np.ndarray, mask: np.ndarray, g1: np.ndarray) -> list[str
         return []
     words = []  # (rows, letter, number matrix) per written word
     for k, (letter, decimals) in enumerate(zip(LETTERS, DECIMALS, strict=True)):
-        rows = np.flatnonzero(mask[:, k])
-        if len(rows):
-            words.append((rows, letter, _number(vals[rows, k], decimals)))
-    cells = np.zeros((n, 3 + sum(2 + w.shape[1] for _, _, w in words)), dtype=np.uint8)
+        used = mask[:, k]
+        rows = np.flatnonzero(used)
+        if 2 * len(rows) > n:  # most lines write it: format every row, blank the others
+            rows = slice(None)
+            values = np.where(used, vals[:, k], 0.0)
+        elif len(rows):
+            values = vals[rows, k]
+        else:
+            continue
+        words.append((rows, letter, _number(values, decimals), used))
+    cells = np.zeros((n, 3 + sum(2 + w.shape[1] for _, _, w, _ in words)), dtype=np.uint8)
     cells[:, 0] = ord("G")
     cells[:, 1] = np.where(g1, ord("1"), ord("0"))
     at = 2
-    for rows, letter, number in words:
+    for rows, letter, number, used in words:
+        end = at + 2 + number.shape[1]
         cells[rows, at], cells[rows, at + 1] = ord(" "), ord(letter)
-        cells[rows, at + 2:at + 2 + number.shape[1]] = number
-        at += 2 + number.shape[1]
+        cells[rows, at + 2:end] = number
+        if isinstance(rows, slice):
+            cells[~used, at:end] = _BLANK
+        at = end
     cells[:, -1] = ord("\n")
     flat = cells.ravel()
     return flat[flat != _BLANK].tobytes().decode("ascii").split("\n")[:-1]
