@@ -7,9 +7,9 @@ with its process CPU time next to the wall time (on a shared machine the wall ti
 run mostly measures the neighbours). The skeleton cache is cleared before every run.
 
 Stages: sections, skeleton, layers (marching) and obstacles are wall seconds of the main
-thread; zones and toolpaths (shells, fill, order, lift) are CPU seconds of the threads that
-ran them (:mod:`slicer.subpart_paths`), which overlap the marching; finish is the wall time
-the main thread waits for them after the last sub-part is marched.
+thread; paths is the wall time of the toolpath stage that follows (all sub-parts at once, the
+per-layer polygon work on a thread pool, :mod:`slicer.subpart_paths`); zones and toolpaths
+are the CPU seconds of the threads inside it (on two cores they add up to more than paths).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 
-STAGES = ("sections", "skeleton", "layers", "zones", "toolpaths", "obstacles", "finish")
+STAGES = ("sections", "skeleton", "layers", "zones", "toolpaths", "obstacles", "paths")
 
 
 def plan_once(dec: Decomposition) -> PrintPlan:

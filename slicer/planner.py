@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import os
 import time
-from concurrent.futures import Executor, Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import manifold3d as m3
@@ -35,7 +35,7 @@ from slicer.planes2d import from_plane, plane_frame, section, slicing_solid
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 from slicer.skeleton import SkeletonCurve, line_curve, skeleton_curve
-from slicer.subpart_paths import build_layers, fill_spec, submit_shell
+from slicer.subpart_paths import build_layers
 
 __all__ = ["SlicingError", "plan_planar", "plan_print"]
 
@@ -186,10 +186,9 @@ class _Timer:
 
 
 def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np.ndarray, bool],
-                   settings: ProcessSettings, machine: _Machine, timer: _Timer, pool: Executor
-                   ) -> tuple[list[LayerPlane], list[tuple[float, float]], list[Future]]:
-    """March one sub-part's layers; returns them with their (A, C) and their shells, started
-    on ``pool`` as each layer is accepted.
+                   settings: ProcessSettings, machine: _Machine, timer: _Timer
+                   ) -> tuple[list[LayerPlane], list[tuple[float, float]]]:
+    """March one sub-part's layers; returns them with their (A, C).
 
     ``base`` is (point, normal, upright): an upright part (the root, the planar control) is
     sliced along the vertical through its base centre; others along their skeleton curve.
@@ -208,15 +207,14 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
     def accept(origin: np.ndarray, frame: np.ndarray, region: BaseGeometry) -> str | None:
         return machine.accept(origin, frame, region)
 
-    layers, shells, spec = [], [], fill_spec(settings)
+    layers = []
     for layer in march_layers(solid, curve, centre, base[1], _march(settings), accept, index):
         layers.append(layer)
-        shells.append(submit_shell(pool, layer.region, spec))
         poses.append(machine.pose)
         machine.c = machine.pose[1]
         machine.printed(_outline(layer.region, layer.origin, layer.frame, OBSTACLE_SPACING))
     timer.lap("layers")
-    return layers, poses, shells
+    return layers, poses
 
 
 def _child_base(index: int, mesh: trimesh.Trimesh, point: np.ndarray, normal: np.ndarray,
@@ -255,27 +253,27 @@ def plan_print(decomposition, settings: ProcessSettings, geometry: MachineGeomet
     machine = _Machine(geometry, head)
     subs = {s.index: s for s in decomposition.subparts}
     t = settings.layer_height
-    jobs = []
-    with ThreadPoolExecutor(WORKERS) as pool, ThreadPoolExecutor(1) as builder:
-        for k in decomposition.order:
-            sp = subs[k]
-            base = _base_of(sp)
-            layers, poses, shells = _slice_subpart(k, sp.mesh, (*base, sp.parent is None),
-                                                   settings, machine, timer, pool)
-            kids = [_child_base(c.index, c.mesh, c.base_plane.point, c.base_plane.normal, t)
-                    for c in decomposition.subparts
-                    if c.parent == k and c.base_plane is not None]
-            timer.lap("sections")
-            jobs.append((sp, base, builder.submit(build_layers, k, layers, poses, settings,
-                                                  sp.parent is None, kids, pool, shells)))
-            machine.parts = np.vstack([machine.parts,
-                                       _surface_samples(sp.mesh, OBSTACLE_SPACING)])
-            timer.lap("obstacles")
+    marched = []
+    for k in decomposition.order:  # marching reads the printed state: in build order
+        sp = subs[k]
+        base = _base_of(sp)
+        layers, poses = _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings,
+                                       machine, timer)
+        kids = [_child_base(c.index, c.mesh, c.base_plane.point, c.base_plane.normal, t)
+                for c in decomposition.subparts if c.parent == k and c.base_plane is not None]
+        timer.lap("sections")
+        marched.append((sp, base, layers, poses, kids))
+        machine.parts = np.vstack([machine.parts, _surface_samples(sp.mesh, OBSTACLE_SPACING)])
+        timer.lap("obstacles")
+    with ThreadPoolExecutor(WORKERS) as pool, ThreadPoolExecutor(len(marched) or 1) as builder:
+        jobs = [builder.submit(build_layers, sp.index, layers, poses, settings,
+                               sp.parent is None, kids, pool)
+                for sp, _, layers, poses, kids in marched]
         plans = [SubpartPlan(sp.index, sp.parent, None if sp.parent is None else base[0],
                              None if sp.parent is None else base[1],
-                             np.asarray(sp.build_direction, dtype=float),
-                             _built(job, timer)) for sp, base, job in jobs]
-        timer.lap("finish")
+                             np.asarray(sp.build_direction, dtype=float), _built(job, timer))
+                 for (sp, base, *_), job in zip(marched, jobs, strict=True)]
+    timer.lap("paths")
     volume = float(getattr(decomposition, "volume", sum(s.mesh.volume for s in subs.values())))
     return PrintPlan(np.asarray(decomposition.placement, dtype=float), plans, volume,
                      dict(timer.laps))
@@ -307,10 +305,10 @@ def plan_planar(mesh: trimesh.Trimesh, settings: ProcessSettings,
     timer = _Timer()
     machine = _Machine(geometry, None, fixed=True)
     base = (np.array([0.0, 0.0, float(mesh.bounds[0][2])]), UP.copy(), True)
+    layers, poses = _slice_subpart(0, mesh, base, settings, machine, timer)
     with ThreadPoolExecutor(WORKERS) as pool:
-        layers, poses, shells = _slice_subpart(0, mesh, base, settings, machine, timer, pool)
-        plan_layers, seconds = build_layers(0, layers, poses, settings, True, [], pool, shells)
-    timer.lap("finish")
+        plan_layers, seconds = build_layers(0, layers, poses, settings, True, [], pool)
+    timer.lap("paths")
     timer.laps.update({k: timer.laps.get(k, 0.0) + v for k, v in seconds.items()})
     sub = SubpartPlan(0, None, None, None, UP.copy(), plan_layers)
     return PrintPlan(np.eye(4) if placement is None else np.asarray(placement, dtype=float),

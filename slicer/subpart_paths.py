@@ -13,6 +13,10 @@ while GEOS works, so two cores offset most of the polygon booleans); stage 3 run
 order. Every layer is computed by the same calls on the same inputs as in a plain loop, and
 results are collected in layer order, so the plan does not depend on the pool or on timing.
 
+The planner marches every sub-part first and builds all their paths afterwards: running the
+pool beside the marching made the marching wait for the GIL after each numpy or GEOS call
+(manifold3d and CGAL keep it while they work), which cost more than the overlap gained.
+
 Stage timings are CPU seconds of the threads doing the work (:func:`time.thread_time`),
 summed over tasks: on two cores they add up to more than the wall time.
 """
@@ -22,7 +26,7 @@ from __future__ import annotations
 import functools
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import Executor, Future
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from typing import TypeVar
 
@@ -52,12 +56,6 @@ def timed(fn: Callable[..., T], *args: object) -> tuple[T, float]:
     t = time.thread_time()
     out = fn(*args)
     return out, time.thread_time() - t
-
-
-def submit_shell(pool: Executor, region: BaseGeometry, spec: FillSpec
-                 ) -> Future[tuple[Shell, float]]:
-    """Start a layer's shell on the pool (as soon as the layer is marched)."""
-    return pool.submit(timed, shell, region, spec)
 
 
 @dataclass
@@ -140,8 +138,7 @@ def _lift(paths: Sequence[Path2D], layer: LayerPlane, settings: ProcessSettings,
 
 def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, float]],
                  settings: ProcessSettings, grounded: bool, bases: list[ChildBase],
-                 pool: Executor, shells: Sequence[Future[tuple[Shell, float]]] | None = None
-                 ) -> tuple[list[Layer], dict[str, float]]:
+                 pool: Executor) -> tuple[list[Layer], dict[str, float]]:
     """Zones, toolpaths and plan Layers of one sub-part.
 
     Parameters
@@ -157,8 +154,6 @@ def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, 
         Its children's bases (interface zones).
     pool : Executor
         Runs stages 1 and 2; its tasks never wait on each other.
-    shells : sequence of Future, optional
-        Stage 1 already submitted per layer (:func:`submit_shell`).
 
     Returns
     -------
@@ -167,9 +162,8 @@ def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, 
         CPU seconds of "toolpaths" (shells, fill, order, lift) and "zones".
     """
     spec = fill_spec(settings)
-    if shells is None:
-        shells = [submit_shell(pool, lp.region, spec) for lp in layers]
-    done = [f.result() for f in shells]
+    done = list(pool.map(timed, [shell] * len(layers), [lp.region for lp in layers],
+                         [spec] * len(layers)))
     job = _Job(layers, [s for s, _ in done], settings, grounded, bases)
     staged = list(pool.map(job.layer, range(len(layers))))
     seconds = {"toolpaths": sum(t for _, t in done) + sum(t for _, _, t in staged),
