@@ -8,7 +8,7 @@ synthetic five-axis lines carrying every axis (~65 bytes, a worst case). Printed
 lines/s, wire bytes/s, the share of the wire limit, resent lines and host CPU seconds per
 1000 lines.
 
-Run: ``.venv/bin/python bench/stream.py [--lines N]``.
+Run: ``.venv/bin/python bench/stream.py [--lines N] [--job sliced|planar|five-axis]``.
 """
 
 from __future__ import annotations
@@ -92,12 +92,14 @@ def sliced_job(n: int) -> list[str]:
     return cmds[len(cmds) // 3:len(cmds) // 3 + n]  # mid-print: layers, not the start script
 
 
-async def main(n: int) -> None:
+JOBS = {"sliced": sliced_job, "planar": planar_job, "five-axis": five_axis_job}
+
+
+async def main(n: int, jobs: list[str]) -> None:
     print(f"{'job':>9} {'baud':>7} {'buffer':>6} {'mode':>10} {'lines/s':>8} {'bytes/s':>8} "
           f"{'wire %':>6} {'resent':>6} {'cpu s/1000':>10}")
-    for job, make in (("sliced", sliced_job), ("planar", planar_job),
-                      ("five-axis", five_axis_job)):
-        await run_job(job, make(n))
+    for job in jobs:
+        await run_job(job, JOBS[job](n))
 
 
 async def run_job(job: str, lines: list[str]) -> None:
@@ -115,4 +117,7 @@ async def run_job(job: str, lines: list[str]) -> None:
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--lines", type=int, default=1000)
-    asyncio.run(main(parser.parse_args().lines))
+    parser.add_argument("--job", choices=list(JOBS), action="append",
+                        help="only this job (repeatable; default: all)")
+    args = parser.parse_args()
+    asyncio.run(main(args.lines, args.job or list(JOBS)))

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
 from typing import Any
@@ -197,7 +198,8 @@ class SerialLink:
     # -- the machinery ------------------------------------------------------------------
 
     def _now(self) -> float:
-        return asyncio.get_running_loop().time()
+        # asyncio's loop clock (BaseEventLoop.time) without looking the loop up each line
+        return time.monotonic()
 
     def _on_lines(self, lines: list[bytes]) -> None:
         self._apply(self.protocol.receive_lines(
@@ -223,10 +225,11 @@ class SerialLink:
 
     def _event(self, action: Action) -> None:
         if isinstance(action, Acked):
-            while self._lines and self._lines[0][0] <= action.line:
-                _, fut = self._lines.popleft()
+            lines = self._lines
+            while lines and lines[0][0] <= action.line:
+                seq, fut = lines.popleft()
                 if not fut.done():
-                    fut.set_result(_)
+                    fut.set_result(seq)
         elif isinstance(action, Answer):
             self._answer(action)
         elif isinstance(action, Connected):

@@ -239,7 +239,8 @@ class Protocol:
             if not queue:
                 return
             item = queue[0]
-            size = len(item.data) if item.data else len(item.command) + 12
+            # not framed yet: "N<next> " + command + "*<checksum, at most 3 digits>\n"
+            size = len(item.data) if item.data else len(item.command) + len(str(self._next)) + 7
             if self._read_through > self._executed:
                 lines, nbytes = self._inflight.after_first(self._read_through)
             else:
@@ -259,7 +260,7 @@ class Protocol:
             self._progress = now
         self._out.append(Write(item.data))
         self._inflight.add(Sent(item, self._epoch, now))
-        if item.command.split()[0] == NUDGE:
+        if item.command.startswith(NUDGE) and item.command[4:5] in ("", " "):
             self._m105.append(item.number)
         if item.kind == "handshake":
             return
@@ -339,8 +340,9 @@ class Protocol:
         while self._history_low <= limit:
             self._history.pop(self._history_low, None)
             self._history_low += 1
-        for n in [n for n in self._resend_counts if n <= executed]:
-            del self._resend_counts[n]
+        if self._resend_counts:
+            for n in [n for n in self._resend_counts if n <= executed]:
+                del self._resend_counts[n]
 
     # -- resend -------------------------------------------------------------------------
 

@@ -10,6 +10,7 @@ import argparse
 import asyncio
 import contextlib
 import os
+import selectors
 import signal
 import sys
 import tty
@@ -77,11 +78,22 @@ def _write_all(fd: int, data: bytes) -> None:
         os.write(fd, data)
 
 
+def precise_loop() -> asyncio.AbstractEventLoop:
+    """An event loop whose timers fire on time to the kernel's slack, not to the millisecond.
+
+    The default selector (epoll) rounds every timeout up to a whole millisecond, so each wire
+    timer of the emulator would fire up to 1 ms late, on top of the wire time itself.
+    select(2) takes microseconds, and the emulator watches a single descriptor.
+    """
+    return asyncio.SelectorEventLoop(selectors.SelectSelector())
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point of ``hostd-sim``."""
     args = parse_args(argv)
     try:
-        asyncio.run(serve_pty(settings_from_args(args)))
+        with asyncio.Runner(loop_factory=precise_loop) as runner:
+            runner.run(serve_pty(settings_from_args(args)))
     except OSError as exc:
         print(f"hostd-sim: {SimError(exc)}", file=sys.stderr)
         return 1

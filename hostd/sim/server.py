@@ -19,6 +19,12 @@ from hostd.sim.settings import SimSettings
 class Emulator:
     """One emulated board attached to a byte sink.
 
+    Wire timing is computed, not slept: each line reaches the firmware when its last byte has
+    crossed the throttled wire, and each reply leaves when the wire back is free after the
+    moment it was produced. A timer that fires late (the event loop's timers are only
+    millisecond-exact) delays the delivery, never the wire schedule, so the replies of a late
+    delivery go out at the times the wire would have carried them (at once, if that is past).
+
     Parameters
     ----------
     settings
@@ -35,12 +41,14 @@ class Emulator:
         self._t0 = self._loop.time()
         self._rate = settings.wire_bytes_per_second
         self._inbox: deque[tuple[float, bytes]] = deque()
+        self._outbox: deque[tuple[float, bytes]] = deque()
         self._in_free = 0.0
         self._out_free = 0.0
         self._in_timer: asyncio.TimerHandle | None = None
+        self._out_timer: asyncio.TimerHandle | None = None
         self._wake_timer: asyncio.TimerHandle | None = None
         self.closed = False
-        self._flush()
+        self._flush(self._t0)
 
     # -- input --------------------------------------------------------------------------
 
@@ -48,10 +56,10 @@ class Emulator:
         """Bytes the host wrote; they reach the firmware at the wire rate."""
         if self.closed or not data:
             return
-        if self._rate == float("inf"):
-            self._deliver(data)
-            return
         now = self._loop.time()
+        if self._rate == float("inf"):
+            self._deliver(data, now)
+            return
         start = 0
         while start < len(data):
             end = data.find(b"\n", start)
@@ -65,31 +73,29 @@ class Emulator:
     def _drain_inbox(self) -> None:
         self._in_timer = None
         now = self._loop.time()
-        due = bytearray()
-        while self._inbox and self._inbox[0][0] <= now:
-            due += self._inbox.popleft()[1]
-        if due:
-            self._deliver(bytes(due))
+        while self._inbox and self._inbox[0][0] <= now and not self.closed:
+            arrived, chunk = self._inbox.popleft()
+            self._deliver(chunk, arrived)
         if self._inbox and not self.closed:
             self._in_timer = self._loop.call_at(self._inbox[0][0], self._drain_inbox)
 
-    def _deliver(self, data: bytes) -> None:
+    def _deliver(self, data: bytes, arrived: float) -> None:
         fw = self.firmware
         if self.settings.realtime:
-            fw.advance(self._sim_now())
+            fw.advance(self._sim_time(arrived))
         fw.receive(data)
-        self._run()
+        self._run(arrived)
 
     # -- time ---------------------------------------------------------------------------
 
-    def _sim_now(self) -> float:
-        return (self._loop.time() - self._t0) * self.settings.time_scale
+    def _sim_time(self, when: float) -> float:
+        return (when - self._t0) * self.settings.time_scale
 
-    def _run(self) -> None:
+    def _run(self, when: float) -> None:
         fw = self.firmware
         if not self.settings.realtime:
             fw.settle()
-        self._flush()
+        self._flush(when)
         self._schedule()
 
     def _schedule(self) -> None:
@@ -104,29 +110,37 @@ class Emulator:
 
     def _wake(self) -> None:
         self._wake_timer = None
-        self.firmware.advance(self._sim_now())
-        self._run()
+        now = self._loop.time()
+        self.firmware.advance(self._sim_time(now))
+        self._run(now)
 
     # -- output -------------------------------------------------------------------------
 
-    def _flush(self) -> None:
+    def _flush(self, produced: float) -> None:
+        """Send the firmware's replies, produced at ``produced``, at the wire rate."""
         data = self.firmware.take_output()
         if not data or self.closed:
             return
         if self._rate == float("inf"):
             self._write(data)
             return
-        self._out_free = max(self._out_free, self._loop.time()) + len(data) / self._rate
-        self._loop.call_at(self._out_free, self._send_late, data)
+        self._out_free = max(self._out_free, produced) + len(data) / self._rate
+        self._outbox.append((self._out_free, data))
+        if self._out_timer is None:  # else the armed timer reaches this reply in turn
+            self._drain_outbox()
 
-    def _send_late(self, data: bytes) -> None:
-        if not self.closed:
-            self._write(data)
+    def _drain_outbox(self) -> None:
+        self._out_timer = None
+        now = self._loop.time()
+        while self._outbox and self._outbox[0][0] <= now and not self.closed:
+            self._write(self._outbox.popleft()[1])
+        if self._outbox and not self.closed:
+            self._out_timer = self._loop.call_at(self._outbox[0][0], self._drain_outbox)
 
     def close(self) -> None:
         """Stop all timers; later input is ignored."""
         self.closed = True
-        for timer in (self._in_timer, self._wake_timer):
+        for timer in (self._in_timer, self._out_timer, self._wake_timer):
             if timer is not None:
                 timer.cancel()
 

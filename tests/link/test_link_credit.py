@@ -120,3 +120,18 @@ def test_plain_oks_free_only_what_they_acknowledge() -> None:
     assert written(proto.receive("ok", 0.0)) == 1
     assert written(proto.receive("ok P10 B0", 0.0)) == 1  # no N: no queue information
     assert proto.inflight_bytes == 2 * SIZE
+
+
+def test_the_credit_holds_past_line_100000_where_numbers_grow_longer() -> None:
+    command = "G1 X1.5 Y2.5 E0.01"
+    size = max(len(encode(frame(n, command))) for n in range(100_000, 100_100))
+    proto = handshaken(rx=2 * size - 1)  # two of the longest lines do not fit, by one byte
+    seen = 0
+    for _ in range(3):
+        proto.submit(command, 0.0)
+    for _ in range(100_010):
+        proto.submit(command, 0.0)  # lines keep waiting for credit
+        proto.receive("ok", 0.0)
+        seen = max(seen, proto.inflight_bytes)
+    assert proto.last_acked >= 100_000
+    assert seen <= 2 * size - 1
