@@ -23,10 +23,9 @@ summed over tasks: on two cores they add up to more than the wall time.
 
 from __future__ import annotations
 
-import functools
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import Executor
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass
 from typing import TypeVar
 
@@ -75,33 +74,34 @@ def _union(a: BaseGeometry, b: BaseGeometry) -> BaseGeometry:
     return b if a.is_empty else polygonal(shapely.union(a, b), valid=True)
 
 
+class _Shells(Sequence[BaseGeometry]):
+    """One attribute ("domain", "inner") of the layers' shells, read from their futures."""
+
+    def __init__(self, shells: Sequence[Future[tuple[Shell, float]]], attr: str) -> None:
+        self.shells, self.attr = shells, attr
+
+    def __len__(self) -> int:
+        return len(self.shells)
+
+    def __getitem__(self, i):  # type: ignore[override]  # ints only
+        return getattr(self.shells[i].result()[0], self.attr)
+
+
 @dataclass
 class _Job:
-    """What every layer of one sub-part shares in stage 2."""
+    """What every layer of one sub-part shares in stage 2 (shells as futures: a layer's
+    stage 2 reads only its own shell and the next one's)."""
 
     layers: Sequence[LayerPlane]
-    shells: Sequence[Shell]
+    shells: Sequence[Future[tuple[Shell, float]]]
     settings: ProcessSettings
     grounded: bool
     bases: list[ChildBase]
 
-    @property
-    def domains(self) -> list[BaseGeometry]:
-        """Fill domain per layer."""
-        return self._lists[0]
-
-    @property
-    def inners(self) -> list[BaseGeometry]:
-        """Area inside the perimeters per layer."""
-        return self._lists[1]
-
-    @functools.cached_property
-    def _lists(self) -> tuple[list[BaseGeometry], list[BaseGeometry]]:
-        return [sh.domain for sh in self.shells], [sh.inner for sh in self.shells]
-
     def zones(self, i: int) -> tuple[BaseGeometry, BaseGeometry, int | None]:
         """Layer i's solid zone (skins and wall footing), interface zone and its child."""
-        s, domains, inners = self.settings, self.domains, self.inners
+        s = self.settings
+        domains, inners = _Shells(self.shells, "domain"), _Shells(self.shells, "inner")
         solid = _union(solid_zone(self.layers, i, s.solid_layers, self.grounded, domains[i]),
                        wall_footing(self.layers, i, inners, domains, s.line_width))
         t = s.layer_height
@@ -114,7 +114,7 @@ class _Job:
     def layer(self, i: int) -> tuple[_Zones, float, float]:
         """Stage 2 of layer i with its zone and fill CPU seconds."""
         (solid, izone, owner), t_zone = timed(self.zones, i)
-        fill, t_fill = timed(fill_paths, self.shells[i].domain, solid, izone,
+        fill, t_fill = timed(fill_paths, self.shells[i].result()[0].domain, solid, izone,
                              fill_spec(self.settings), i)
         return _Zones(solid, izone, owner, fill), t_zone, t_fill
 
@@ -162,25 +162,28 @@ def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, 
         CPU seconds of "toolpaths" (shells, fill, order, lift) and "zones".
     """
     spec = fill_spec(settings)
-    done = list(pool.map(timed, [shell] * len(layers), [lp.region for lp in layers],
-                         [spec] * len(layers)))
-    job = _Job(layers, [s for s, _ in done], settings, grounded, bases)
-    staged = list(pool.map(job.layer, range(len(layers))))
-    seconds = {"toolpaths": sum(t for _, t in done) + sum(t for _, _, t in staged),
-               "zones": sum(t for _, t, _ in staged)}
-    out, t = timed(_order_and_lift, index, job, [z for z, _, _ in staged], poses)
-    seconds["toolpaths"] += t
+    shells = [pool.submit(timed, shell, lp.region, spec) for lp in layers]
+    job = _Job(layers, shells, settings, grounded, bases)
+    # every stage-2 task is queued after all the shells it waits for: no pool deadlock
+    staged = [pool.submit(job.layer, i) for i in range(len(layers))]
+    seconds = {"toolpaths": 0.0, "zones": 0.0}
+    out, t = timed(_order_and_lift, index, job, staged, poses, seconds)
+    seconds["toolpaths"] += t + sum(f.result()[1] for f in shells)
     return out, seconds
 
 
-def _order_and_lift(index: int, job: _Job, zones: list[_Zones],
-                    poses: list[tuple[float, float]]) -> list[Layer]:
-    """Stage 3: paths ordered from the previous layer's end, lifted into the platform frame."""
+def _order_and_lift(index: int, job: _Job, staged: list[Future[tuple[_Zones, float, float]]],
+                    poses: list[tuple[float, float]], seconds: dict[str, float]) -> list[Layer]:
+    """Stage 3, layer by layer as stage 2 delivers: paths ordered from the previous layer's
+    end, lifted into the platform frame. Stage 2's CPU seconds are added to ``seconds``."""
     s, spec = job.settings, fill_spec(job.settings)
     out, here = [], np.zeros(2)
-    for i, (lp, (a, c), z) in enumerate(zip(job.layers, poses, zones, strict=True)):
-        paths2d = layer_paths(lp.region, z.solid, z.interface, spec, i, here, job.shells[i],
-                              z.fill)
+    for i, (lp, (a, c), task) in enumerate(zip(job.layers, poses, staged, strict=True)):
+        z, t_zone, t_fill = task.result()
+        seconds["zones"] += t_zone
+        seconds["toolpaths"] += t_fill
+        paths2d = layer_paths(lp.region, z.solid, z.interface, spec, i, here,
+                              job.shells[i].result()[0], z.fill)
         if paths2d:
             here = paths2d[-1].xy[-1]
         first_child = i == 0 and not job.grounded
