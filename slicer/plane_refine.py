@@ -35,7 +35,8 @@ from slicer.planes import (
     verify_base,
 )
 from slicer.printhead import Printhead
-from slicer.split import split_piece
+from slicer.samples import to_trimesh
+from slicer.split import split_solid
 
 OVERHANG_DEG = 47.0  # faces steeper than this from the build direction count (45° + slack)
 BASE_TOL = 0.05  # mm: samples this close to the parent's own base plane are its base face
@@ -45,6 +46,7 @@ STEEP_BASE_DEG = 50.0  # a base leaning further from the parent's direction leav
 # first layer beyond the parent's beads (inset w/2 from the cut): see :func:`_too_steep`
 CLEARANCE = 1.0  # mm added to the head's radius when a refined plane is settled: the walk
 # ends on the edge of the feasible set, where the final check's own samples may disagree
+EXACT_CLEARANCE = 0.5  # mm added to the head's radius in the exact check of a found plane
 SETTLE_STEPS = (0.0, 0.5, 1.0, 1.5, 2.0)  # mm: a refined plane moves out along n until clear
 MIN_GAIN = 1.0  # mm² (about one sample): smaller gains are sampling noise
 LEAN_SHARE = 0.5  # share of refinement steps that lean the base away from the parent's axis
@@ -67,20 +69,29 @@ def residual_overhang(ctx: PieceContext, plane: Plane, child: np.ndarray,
     :data:`OVERHANG_DEG` below the horizontal of the parent's build direction, except on the
     parent's base plane (that face lies on the platform or on the grandparent).
     """
-    pts, face, down = _overhanging(ctx, parent)
-    parent_side = ~child[face] | (plane.signed(pts) <= 0.0)
-    return float((down & parent_side).sum())
+    return Overhang.of(ctx, parent).residual(plane, child)
 
 
-def _overhanging(ctx: PieceContext, parent: ParentFrame
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Surface samples on faces (k, 3), their faces (k,) and whether they overhang (k,)."""
-    on_face = ctx.sample_face >= 0
-    pts, face = ctx.samples[on_face], ctx.sample_face[on_face]
-    normals = ctx.mesh.face_normals[face]
-    down = normals @ parent.direction < -np.cos(np.radians(OVERHANG_DEG))
-    down &= np.abs(parent.base.signed(pts)) >= BASE_TOL
-    return pts, face, down
+@dataclass(frozen=True)
+class Overhang:
+    """The overhanging surface samples of a piece: ``points`` (k, 3) on ``faces`` (k,)."""
+
+    points: np.ndarray
+    faces: np.ndarray
+
+    @classmethod
+    def of(cls, ctx: PieceContext, parent: ParentFrame) -> Overhang:
+        """The samples of ``ctx`` that overhang when the piece prints as ``parent``."""
+        on_face = ctx.sample_face >= 0
+        pts, face = ctx.samples[on_face], ctx.sample_face[on_face]
+        down = ctx.mesh.face_normals[face] @ parent.direction < -np.cos(
+            np.radians(OVERHANG_DEG))
+        down &= np.abs(parent.base.signed(pts)) >= BASE_TOL
+        return cls(pts[down], face[down])
+
+    def residual(self, plane: Plane, child: np.ndarray) -> float:
+        """How many of them stay with the parent when ``plane`` cuts off ``child`` faces."""
+        return float((~child[self.faces] | (plane.signed(self.points) <= 0.0)).sum())
 
 
 def refine_plane(ctx: PieceContext, found: Check, parent: ParentFrame,
@@ -103,8 +114,8 @@ def refine_plane(ctx: PieceContext, found: Check, parent: ParentFrame,
 def _walk(ctx: PieceContext, found: Check, parent: ParentFrame, settings: SearchSettings,
           rng: np.random.Generator, area_cap: float) -> tuple[Check, int]:
     """Accumulating walk over feasible planes, each kept step lowering the residual."""
-    best = found
-    cost = residual_overhang(ctx, found.plane, found.child_faces, parent)
+    best, overhang = found, Overhang.of(ctx, parent)
+    cost = overhang.residual(found.plane, found.child_faces)
     progress, step = 0, 0
     for step in range(1, REFINE_STEPS + 1):
         if cost < MIN_GAIN or step - progress > REFINE_WINDOW:
@@ -113,7 +124,7 @@ def _walk(ctx: PieceContext, found: Check, parent: ParentFrame, settings: Search
         if _too_steep(plane, found.plane, parent):
             continue
         child, tangled = child_faces(ctx, plane)  # the residual first: it is cheap
-        c = residual_overhang(ctx, plane, child, parent)
+        c = overhang.residual(plane, child)
         if tangled or c > cost - MIN_GAIN:
             continue
         cand = evaluate(ctx, plane)
@@ -144,11 +155,13 @@ def splits_clear(ctx: PieceContext, cand: Check) -> bool:
     the search's face connectivity can count parent material that a straddling face links
     to the child as the child's, which the exact split then leaves in the head's way."""
     try:
-        child, rest = split_piece(ctx.mesh, cand.plane, cand.child_faces)
+        kid, others = split_solid(ctx.solid, cand.plane, ctx.mesh, cand.child_faces)
     except ValueError:
         return False
+    child, rest = to_trimesh(kid), to_trimesh(others)
     obstacles = np.concatenate([surface_samples([rest], ctx.seed + 1), ctx.others])
-    return verify_base(child, cand.plane, obstacles, ctx.head, ctx.a_limits) is None
+    head = _with_clearance(ctx, EXACT_CLEARANCE).head
+    return verify_base(child, cand.plane, obstacles, head, ctx.a_limits) is None
 
 
 def _propose(best: Check, parent: ParentFrame, settings: SearchSettings,

@@ -34,6 +34,7 @@ import functools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import manifold3d as m3
 import numpy as np
 import shapely
 import trimesh
@@ -42,6 +43,7 @@ from scipy.sparse.csgraph import connected_components
 
 from kinematics.orient import reachable_mask
 from slicer.printhead import Printhead
+from slicer.samples import to_manifold
 
 EPS = 1e-6  # mm: "on the plane"
 GRID = 1e-6  # mm: section vertices are snapped to this grid so loops close
@@ -159,6 +161,11 @@ class PieceContext:
         self.samples = np.concatenate([pts, m.vertices])
         self.sample_face = np.concatenate([face, np.full(len(m.vertices), -1)])
         self.vertex_faces = m.vertex_faces
+
+    @functools.cached_property
+    def solid(self) -> m3.Manifold:
+        """The piece as a manifold3d solid (made once, for exact splits)."""
+        return to_manifold(self.mesh)
 
 
 def evaluate(ctx: PieceContext, plane: Plane) -> Check:
