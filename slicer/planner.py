@@ -41,6 +41,7 @@ __all__ = ["SlicingError", "plan_planar", "plan_print"]
 
 OBSTACLE_SPACING = 1.0  # mm between obstacle samples (printed surfaces and outlines)
 TIP_SPACING = 2.0  # mm between nozzle positions checked per layer
+CANDIDATE_SLACK = 1e-6  # mm: margin of the pre-filter of obstacle heights (≫ rounding)
 UP = np.array([0.0, 0.0, 1.0])
 WORKERS = min(4, os.cpu_count() or 1)  # threads of the per-layer polygon work
 
@@ -59,18 +60,27 @@ class _Machine:
     pose: tuple[float, float] = (0.0, 0.0)
     fixed: bool = False  # planar control: A = C = 0 always
     parts: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # earlier sub-parts
-    outlines: list[np.ndarray] = field(default_factory=list)  # this part's printed outlines
+    _outlines: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # grown by doubling
+    _count: int = 0  # rows of _outlines in use
 
     @property
     def own(self) -> np.ndarray:
-        """Outline samples of this sub-part's printed layers, (n, 3) float."""
-        if len(self.outlines) > 1:
-            self.outlines[:] = [np.vstack(self.outlines)]
-        return self.outlines[0] if self.outlines else np.zeros((0, 3))
+        """Outline samples of this sub-part's printed layers in print order, (n, 3) float."""
+        return self._outlines[:self._count]
+
+    def start(self, subpart: int) -> None:
+        """Begin a sub-part: nothing of it printed yet."""
+        self.subpart, self._count = subpart, 0
 
     def printed(self, outline: np.ndarray) -> None:
         """Add a printed layer's outline samples to the obstacles."""
-        self.outlines.append(outline)
+        need = self._count + len(outline)
+        if need > len(self._outlines):
+            grown = np.empty((max(need, 2 * len(self._outlines), 1024), 3))
+            grown[:self._count] = self.own
+            self._outlines = grown
+        self._outlines[self._count:need] = outline
+        self._count = need
 
     def accept(self, origin: np.ndarray, frame: np.ndarray, region: BaseGeometry) -> str | None:
         """None if the plane can be printed, else the name of what is in the way."""
@@ -106,7 +116,10 @@ def _head_hits(head: Printhead, obstacles: np.ndarray, origin: np.ndarray, frame
     one nearest-neighbour query per point on a tree of the few tips (this is
     ``head.collisions(obstacles, tips, n).any()`` without the all-pairs search).
     """
-    rel = obstacles - origin
+    # candidates first, from a cheaper height with a margin far above its rounding error
+    rough = obstacles @ frame[2] - float(origin @ frame[2])
+    near = np.flatnonzero((rough > -CANDIDATE_SLACK) & (rough <= head.height + CANDIDATE_SLACK))
+    rel = obstacles[near] - origin
     h = rel @ frame[2]
     keep = (h > 1e-9) & (h <= head.height)
     if not keep.any():
@@ -202,7 +215,7 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
         curve = _curve(mesh, centre, base[1])
     timer.lap("skeleton")
     poses: list[tuple[float, float]] = []
-    machine.subpart, machine.outlines = index, []
+    machine.start(index)
 
     def accept(origin: np.ndarray, frame: np.ndarray, region: BaseGeometry) -> str | None:
         return machine.accept(origin, frame, region)
