@@ -186,8 +186,9 @@ def polygonal(geom: BaseGeometry, valid: bool = False) -> BaseGeometry:
 
 
 def _signed_area(ring: np.ndarray) -> float:
+    """Shoelace area of a ring (n, 2) without its closing vertex, > 0 counter-clockwise."""
     x, y = ring[:, 0], ring[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    return 0.5 * float(x[:-1] @ y[1:] - x[1:] @ y[:-1] + x[-1] * y[0] - x[0] * y[-1])
 
 
 def section(solid: m3.Manifold, origin: ArrayLike, frame: np.ndarray) -> BaseGeometry:
