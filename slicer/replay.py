@@ -145,8 +145,8 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
 
     ``mesh`` is in STL coordinates (moved by the file's placement), or already in the
     platform frame with ``placed``. ``head`` and ``platform_radius`` default to the file's
-    ``;HOSTD_KINEMATICS`` values. With ``threads`` ≥ 2 the model's queries run on a second
-    thread beside the deposits' (:mod:`.replay_stages`); the figures are the same.
+    ``;HOSTD_KINEMATICS`` values. With ``threads`` ≥ 2 the stages run on that many threads
+    as their inputs allow (:mod:`.replay_stages`); the figures are the same.
     """
     t0 = time.perf_counter()
     geo = geometry_from_header(parsed)
@@ -157,24 +157,30 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         parsed.headers.get("KINEMATICS", {}).get("platform_radius", 150.0))
     bead_area = math.pi * proc["filament_diameter"] ** 2 / 4.0 / w
     placement = np.eye(4) if placed else _placement(parsed)
-    with Stages(threads) as stages:
-        model_f = stages.submit("index", lambda: ModelIndex(
+    with Stages(threads) as st:  # in an order where every input is submitted first
+        model_f = st.submit("index", lambda: ModelIndex(
             *_placed_mesh(mesh, placement), inside_pitch=_inside_pitch(w)))
         lengths = move_lengths(parsed)
-        beads, s = stages.run("sample", lambda: _deposits(parsed, geo, lengths, bead_area, w, t))
-        wall_f = stages.submit("wall", lambda: _wall(model_f.result(), s.p, w))
-        inside_f = stages.submit("inside", lambda: _inside_share(
-            model_f.result(), s.p[::INSIDE_STRIDE], wall_f.result()[0][::INSIDE_STRIDE],
-            INSIDE_SLACK * w))
-        tree = stages.run("tree", lambda: point_tree(s.p))
-        ok = stages.run("support", lambda: strict_support(s, t, w, radius, tree))
-        n_hit, reports = stages.run("collisions", lambda: _collisions(
-            parsed, geo, lengths, bead_area, s, head, radius))
-        cov, shell_cov = stages.run("coverage", lambda: coverage(
-            model_f.result(), s, w, t, int(proc["perimeters"]), proc["infill_density"], tree))
-        wall = wall_f.result()[1]
-        bridge = stages.run("bridging", lambda: _bridging(
-            model_f.result(), s, ok, wall, t, w, proc["infill_density"]))
+        dep_f = st.submit("sample", lambda: _deposits(parsed, geo, lengths, bead_area, w, t))
+        tree_f = st.submit("tree", lambda: point_tree(dep_f.result()[1].p), dep_f)
+        wall_f = st.submit("wall", lambda: _wall(model_f.result(), dep_f.result()[1].p, w),
+                           model_f, dep_f)
+        ok_f = st.submit("support", lambda: strict_support(
+            dep_f.result()[1], t, w, radius, tree_f.result()), tree_f)
+        hit_f = st.submit("collisions", lambda: _collisions(
+            parsed, geo, lengths, bead_area, dep_f.result()[1], head, radius), dep_f)
+        cov_f = st.submit("coverage", lambda: coverage(
+            model_f.result(), dep_f.result()[1], w, t, int(proc["perimeters"]),
+            proc["infill_density"], tree_f.result()), model_f, tree_f)
+        inside_f = st.submit("inside", lambda: _inside_share(
+            model_f.result(), dep_f.result()[1].p[::INSIDE_STRIDE],
+            wall_f.result()[0][::INSIDE_STRIDE], INSIDE_SLACK * w), wall_f)
+        bridge_f = st.submit("bridging", lambda: _bridging(
+            model_f.result(), dep_f.result()[1], ok_f.result(), wall_f.result()[1], t, w,
+            proc["infill_density"]), ok_f, wall_f)
+        beads, s = dep_f.result()
+        ok, wall, bridge = ok_f.result(), wall_f.result()[1], bridge_f.result()
+        (n_hit, reports), (cov, shell_cov) = hit_f.result(), cov_f.result()
         inside_share = inside_f.result()
     bad_layers = [_layer_name(s, k) for k in bad_wall_layers(s, wall, ok)]
     n = max(len(s), 1)
@@ -186,7 +192,7 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         wall_supported=float(ok[wall].mean()) if wall.any() else 1.0,
         unsupported_wall_layers=bad_layers, collisions=n_hit,
         collision_messages=[r.message() for r in reports],
-        seconds=time.perf_counter() - t0, timings=stages.wall, cpu_timings=stages.cpu)
+        seconds=time.perf_counter() - t0, timings=st.wall, cpu_timings=st.cpu)
 
 
 def _inside_pitch(line_width: float) -> float:

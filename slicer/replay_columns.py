@@ -24,20 +24,40 @@ def _spans(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return owner, np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
 
 
-def _row_intervals(tri: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """x-interval each triangle (k, 3, 3) covers on its row ``y`` (k,): (lo, hi)."""
-    lo = np.full(len(y), np.inf)
-    hi = np.full(len(y), -np.inf)
-    for i, j in ((0, 1), (1, 2), (2, 0)):
-        a, b = tri[:, i, :2], tri[:, j, :2]
-        swap = (a[:, 1] > b[:, 1]) | ((a[:, 1] == b[:, 1]) & (a[:, 0] > b[:, 0]))
-        p = np.where(swap[:, None], b, a)
-        q = np.where(swap[:, None], a, b)
-        dy = q[:, 1] - p[:, 1]
-        on = (p[:, 1] <= y) & (y < q[:, 1])
-        x = p[:, 0] + (y - p[:, 1]) / np.where(dy > 0, dy, 1.0) * (q[:, 0] - p[:, 0])
-        lo = np.where(on, np.minimum(lo, x), lo)
-        hi = np.where(on, np.maximum(hi, x), hi)
+def _sorted_xy(tris: np.ndarray) -> np.ndarray:
+    """xy of each triangle's vertices (t, 3, 3) sorted by y, then x: (t, 3, 2).
+
+    Every edge then runs from its lower vertex in that order, the canonical direction."""
+    xy = tris[:, :, :2]
+    order = np.lexsort((xy[:, :, 0], xy[:, :, 1]), axis=1)
+    return np.take_along_axis(xy, order[:, :, None], axis=1)
+
+
+def _edge_x(p: np.ndarray, q: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """x where the edges p → q (k, 2) cross rows ``y`` (k,), and whether they do
+    (``p.y ≤ y < q.y``)."""
+    dy = q[:, 1] - p[:, 1]
+    on = (p[:, 1] <= y) & (y < q[:, 1])
+    return p[:, 0] + (y - p[:, 1]) / np.where(dy > 0, dy, 1.0) * (q[:, 0] - p[:, 0]), on
+
+
+def _row_intervals(v: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """x-interval each triangle covers on its row ``y`` (k,): (lo, hi), empty (inf, -inf)
+    off it.
+
+    ``v`` (k, 3, 2) are the triangles' vertices from :func:`_sorted_xy`. A row crosses the
+    long edge v0 → v2 and, below v1, the edge v0 → v1, else v1 → v2 (the third edge is not
+    on the row by the half-open rule).
+    """
+    x_long, on_long = _edge_x(v[:, 0], v[:, 2], y)
+    upper = (y >= v[:, 1, 1])[:, None]
+    x_short, on_short = _edge_x(np.where(upper, v[:, 1], v[:, 0]),
+                                np.where(upper, v[:, 2], v[:, 1]), y)
+    both = on_long & on_short
+    lo = np.where(both, np.minimum(x_long, x_short),
+                  np.where(on_long, x_long, np.where(on_short, x_short, np.inf)))
+    hi = np.where(both, np.maximum(x_long, x_short),
+                  np.where(on_long, x_long, np.where(on_short, x_short, -np.inf)))
     return lo, hi
 
 
@@ -114,7 +134,7 @@ def _crossings(tris: np.ndarray, origin: np.ndarray, pitch: float, dims: np.ndar
     owner, k = _spans(np.maximum(j1 - j0, 0))
     j = j0[owner] + k
     yr = origin[1] + j * pitch
-    lo, hi = _row_intervals(t[owner], yr)
+    lo, hi = _row_intervals(_sorted_xy(t)[owner], yr)
     i0 = np.ceil((lo - origin[0]) / pitch).astype(np.int64)
     i1 = np.ceil((hi - origin[0]) / pitch).astype(np.int64)  # exclusive
     row, k = _spans(np.maximum(i1 - i0, 0))
