@@ -123,7 +123,8 @@ class SerialLink:
         fut: asyncio.Future[int] = asyncio.get_running_loop().create_future()
         seq, actions = self.protocol.submit(command, self._now())
         self._lines.append((seq, fut))
-        self._apply(actions)
+        if actions:  # mostly none: the line waits for credit
+            self._apply(actions)
         return fut
 
     async def send(self, command: str) -> int:

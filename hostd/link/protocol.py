@@ -100,7 +100,10 @@ class Protocol:
             raise errors.NotConnected(f"link is {self.state}", self.last_acked)
         self._seq += 1
         self._pending.append(Item(command, self._seq, kind))
-        self._pump(now)
+        if len(self._pending) == 1 and not self._resend:
+            # only a new head can go out: the lines ahead of it already wait for credit,
+            # which only replies and time give back (and both pump)
+            self._pump(now)
         return self._seq, self._flush()
 
     def receive(self, line: str, now: float) -> list[Action]:
@@ -234,6 +237,7 @@ class Protocol:
     def _pump(self, now: float) -> None:
         if self.state != "ready":
             return
+        inflight = self._inflight
         while True:
             queue = self._resend or self._pending
             if not queue:
@@ -242,10 +246,10 @@ class Protocol:
             # not framed yet: "N<next> " + command + "*<checksum, at most 3 digits>\n"
             size = len(item.data) if item.data else len(item.command) + len(str(self._next)) + 7
             if self._read_through > self._executed:
-                lines, nbytes = self._inflight.after_first(self._read_through)
+                lines, nbytes = inflight.after_first(self._read_through)
             else:
-                lines, nbytes = self._inflight.lines, self._inflight.bytes
-            if not self.window.fits(lines, nbytes, size):
+                lines, nbytes = inflight.lines, inflight.bytes
+            if lines and not self.window.fits(lines, nbytes, size):
                 return
             queue.popleft()
             self._transmit(item, now)

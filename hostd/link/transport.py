@@ -8,6 +8,7 @@ so an ``ok`` is handled (and the lines it frees are written) without a task swit
 from __future__ import annotations
 
 import asyncio
+import os
 import socket
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -74,7 +75,23 @@ class DirectSerialTransport(serial_asyncio.SerialTransport):
 
     The stock transport queues every write until the next loop iteration (a writer callback
     per line); asyncio's own socket and pipe transports try the write first, and so does this.
+    It also reads with a single ``os.read``.
     """
+
+    def _read_ready(self) -> None:
+        """Read what the port holds with one system call (pyserial's ``read`` adds a
+        ``select`` and timeout bookkeeping to every call)."""
+        try:
+            data = os.read(self._serial.fileno(), self._max_read_size)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:
+            self._close(exc=serial.SerialException(f"read failed: {exc}"))
+            return
+        if not data:
+            self._close(exc=serial.SerialException("device disconnected"))
+            return
+        self._protocol.data_received(data)
 
     def write(self, data: bytes) -> None:  # type: ignore[override]
         if self._closing or self._write_buffer or not data:

@@ -7,6 +7,7 @@ rebuild the state by replaying the file up to it.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -31,8 +32,9 @@ def words(command: str) -> tuple[str, dict[str, float]]:
     return code, args
 
 
+@functools.lru_cache(maxsize=1024)
 def _code(word: str) -> str:
-    """Normalise ``G01``/``g1`` to ``G1``."""
+    """Normalise ``G01``/``g1`` to ``G1`` (cached: a file uses a handful of codes)."""
     w = word.upper()
     if len(w) > 1 and w[0] in "GMT" and w[1:].replace(".", "", 1).isdigit():
         num = w[1:].lstrip("0") or "0"
