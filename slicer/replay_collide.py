@@ -57,17 +57,19 @@ class Collision:
 
 def platform_hits(tips: Samples, head: Printhead, radius: float) -> np.ndarray:
     """Tips where some part of the head goes below z = 0 over the platform, (n,) bool."""
-    u = tips.u
-    down = np.array([0.0, 0.0, 1.0]) - u[:, 2:3] * u
-    norm = np.linalg.norm(down, axis=1, keepdims=True)
-    down = np.where(norm > 1e-12, down / np.where(norm > 1e-12, norm, 1.0), 0.0)
+    u, z = tips.u, tips.p[:, 2]
+    # down: the unit vector across the axis towards +z, (e_z − u_z u) / √(1 − u_z²); its z
+    # is √(1 − u_z²), so the lowest points are found from z and u_z alone
+    sin = np.sqrt(np.maximum(1.0 - u[:, 2] ** 2, 0.0))
     hit = np.zeros(len(tips), dtype=bool)
     for s, _, r0, r1 in head.segments:
         for hgt, r in ((s, r0), (_, r1)):
-            below = np.flatnonzero(tips.p[:, 2] + hgt * u[:, 2] - r * down[:, 2]
-                                   < -PLATFORM_TOL)
-            low = tips.p[below, :2] + hgt * u[below, :2] - r * down[below, :2]
-            hit[below] |= np.linalg.norm(low, axis=1) <= radius
+            low = np.flatnonzero(z + hgt * u[:, 2] - r * np.where(sin > 1e-12, sin, 0.0)
+                                 < -PLATFORM_TOL)
+            uz, su = u[low, 2:3], sin[low, None]
+            down = np.where(su > 1e-12, -uz * u[low, :2] / np.where(su > 1e-12, su, 1.0), 0.0)
+            xy = tips.p[low, :2] + hgt * u[low, :2] - r * down
+            hit[low] |= np.linalg.norm(xy, axis=1) <= radius
     return hit
 
 
@@ -124,19 +126,23 @@ def _group_hits(tips: Samples, sel: np.ndarray, beads: np.ndarray, bead_move: np
         hz = hz_o[:n]
         cand = np.flatnonzero((hz > ht.min() + part.bottom) & (hz < ht.max() + part.top))
         if len(cand):
-            ti, oi = _pair_hits(tips, group, beads, bead_move, cand, u, frame, part)
+            reach = part.widest_below(hz[cand].max() - ht)  # the cone narrows to the tip
+            ti, oi = _pair_hits(tips, group[reach > 0], beads, bead_move, cand, u, frame,
+                                part, reach[reach > 0])
             out_t.append(ti)
             out_o.append(oi)
     return np.concatenate(out_t), np.concatenate(out_o)
 
 
 def _pair_hits(tips: Samples, group: np.ndarray, beads: np.ndarray, bead_move: np.ndarray,
-               cand: np.ndarray, u: np.ndarray, frame: np.ndarray, part: HeadPart
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """Earliest bead inside the head part for each tip of ``group`` among ``cand``."""
+               cand: np.ndarray, u: np.ndarray, frame: np.ndarray, part: HeadPart,
+               reach: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Earliest bead inside the head part for each tip of ``group`` among ``cand``, searched
+    within ``reach`` (per tip) of its axis."""
+    if len(group) == 0:
+        return np.zeros(0, dtype=int), np.zeros(0, dtype=int)
     tree = point_tree(beads[cand] @ frame.T)
-    near = tree.query_ball_point(tips.p[group] @ frame.T, part.max_radius,
-                                 return_sorted=False)
+    near = tree.query_ball_point(tips.p[group] @ frame.T, reach, return_sorted=False)
     counts = np.fromiter((len(x) for x in near), dtype=np.intp, count=len(group))
     if counts.sum() == 0:
         return np.zeros(0, dtype=int), np.zeros(0, dtype=int)

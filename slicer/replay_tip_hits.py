@@ -36,6 +36,17 @@ class HeadPart:
     def max_radius(self) -> float:
         return max(max(r0, r1) for _, _, r0, r1 in self.segments)
 
+    def widest_below(self, h: np.ndarray) -> np.ndarray:
+        """Largest radius of the part between its bottom and heights ``h`` above the tip
+        (0 where ``h`` is at or below the bottom); the radius runs linearly along each
+        segment, so the largest lies at a segment's end."""
+        out = np.zeros(h.shape)
+        for a, b, r0, r1 in self.segments:
+            top = np.minimum(h, b)
+            wide = np.maximum(r0, r0 + (r1 - r0) * (top - a) / (b - a))
+            out = np.where(h > a, np.maximum(out, wide), out)
+        return out
+
     def radius_at(self, h: np.ndarray) -> np.ndarray:
         """Radius at heights ``h`` above the tip; -1 outside this part."""
         out = np.full(h.shape, -1.0)
