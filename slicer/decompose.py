@@ -244,7 +244,8 @@ def _cut_all(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition, groups:
         ctx = PieceContext(piece, region, surface_samples(others, settings.seed), head,
                            machine.a_limits, settings.seed)
         check, its = _find_plane(ctx, part, face_group, groups, g, pg, settings, rng)
-        check, more = refine_plane(ctx, check, _frame_of(subparts[pg]), settings.search, rng)
+        check, more = refine_plane(ctx, check, _frame_of(subparts[pg]), groups.direction[g],
+                                   settings.search, rng)
         its += more
         child, rest = split_solid(solids[pg], check.plane, piece, check.child_faces)
         solids[pg], solids[g] = rest, child

@@ -40,10 +40,9 @@ from slicer.split import split_solid
 
 OVERHANG_DEG = 47.0  # faces steeper than this from the build direction count (45° + slack)
 BASE_TOL = 0.05  # mm: samples this close to the parent's own base plane are its base face
-REFINE_STEPS = 300  # hard bound on refinement steps per plane
 REFINE_WINDOW = 60  # stop after this many steps without a lower residual
-STEEP_BASE_DEG = 50.0  # a base leaning further from the parent's direction leaves the child's
-# first layer beyond the parent's beads (inset w/2 from the cut): see :func:`_too_steep`
+STEEP_BASE_DEG = 50.0  # only children whose axis leans further than this from the parent's
+# direction are refined (see :func:`refine_plane`)
 CLEARANCE = 1.0  # mm added to the head's radius when a refined plane is settled: the walk
 # ends on the edge of the feasible set, where the final check's own samples may disagree
 EXACT_CLEARANCE = 0.5  # mm added to the head's radius in the exact check of a found plane
@@ -94,9 +93,16 @@ class Overhang:
         return float((~child[self.faces] | (plane.signed(self.points) <= 0.0)).sum())
 
 
-def refine_plane(ctx: PieceContext, found: Check, parent: ParentFrame,
+def refine_plane(ctx: PieceContext, found: Check, parent: ParentFrame, axis: np.ndarray,
                  settings: SearchSettings, rng: np.random.Generator) -> tuple[Check, int]:
     """Walk on from the feasible ``found`` to feasible planes with less residual overhang.
+
+    Only a child whose unit ``axis`` (3,) leans more than :data:`STEEP_BASE_DEG` from the
+    parent's direction is refined. A branch within that angle leaves the parent a stretch
+    that overhangs by about its own angle, within the replay's 45° rule and its slack. Past
+    it, the first plane's base is that steep too, which already puts the child's first layer
+    beyond the parent's beads next to the cut (they are inset half a line width), so leaning
+    the base further costs nothing there.
 
     Returns
     -------
@@ -106,6 +112,8 @@ def refine_plane(ctx: PieceContext, found: Check, parent: ParentFrame,
     steps : int
         Perturbations tried.
     """
+    if abs(axis @ parent.direction) >= np.cos(np.radians(STEEP_BASE_DEG)):
+        return found, 0
     area_cap = (1.0 + settings.area_growth_max) * (found.start_area or found.area)
     walked, steps = _walk(ctx, found, parent, settings, rng, area_cap)
     return settle(ctx, walked, found, area_cap), steps
@@ -117,12 +125,10 @@ def _walk(ctx: PieceContext, found: Check, parent: ParentFrame, settings: Search
     best, overhang = found, Overhang.of(ctx, parent)
     cost = overhang.residual(found.plane, found.child_faces)
     progress, step = 0, 0
-    for step in range(1, REFINE_STEPS + 1):
+    for step in range(1, settings.refine_steps + 1):
         if cost < MIN_GAIN or step - progress > REFINE_WINDOW:
             return best, step - 1
         plane = _propose(best, parent, settings, rng)
-        if _too_steep(plane, found.plane, parent):
-            continue
         child, tangled = child_faces(ctx, plane)  # the residual first: it is cheap
         c = overhang.residual(plane, child)
         if tangled or c > cost - MIN_GAIN:
@@ -188,15 +194,4 @@ def _with_clearance(ctx: PieceContext, margin: float) -> PieceContext:
     wide.head = Printhead(tuple((s, e, r0 + margin, r1 + margin)
                                 for s, e, r0, r1 in ctx.head.segments))
     return wide
-
-
-def _too_steep(cand: Plane, found: Plane, parent: ParentFrame) -> bool:
-    """Whether the base ``cand`` leans further than :data:`STEEP_BASE_DEG` from the parent's
-    direction while ``found`` does not. On a base that steep the parent's beads next
-    to the cut (inset half a line width, printed along the parent's direction) lie deeper
-    than 1.5 layers below the child's first layer, which the replay then finds unsupported:
-    the walk may not trade overhang for that unless the first plane already had it."""
-    limit = np.cos(np.radians(STEEP_BASE_DEG))
-    return bool(found.normal @ parent.direction >= limit
-                and cand.normal @ parent.direction < limit)
 

@@ -279,6 +279,7 @@ class SearchSettings:
     area_growth_max: float = 0.15
     max_iterations: int = 2000  # hard bound per start plane
     stall_window: int = STALL_WINDOW  # stop after this many steps without progress
+    refine_steps: int = 300  # refinement steps after the first feasible plane; 0 = the paper
 
 
 def perturb(plane: Plane, rng: np.random.Generator, settings: SearchSettings,

@@ -12,7 +12,7 @@ from decompose_checks import check_decomposition
 import slicer.plane_refine as refine
 from kinematics.machine import MachineGeometry
 from slicer.decompose import DecomposeSettings, decompose
-from slicer.planes import PieceContext, Plane, evaluate
+from slicer.planes import PieceContext, Plane, SearchSettings, evaluate
 from slicer.printhead import Printhead
 from slicer.samples import branched_pipe, pipe2, to_manifold, to_trimesh
 from slicer.split import split_solid
@@ -32,12 +32,11 @@ def _overhang_area(mesh: trimesh.Trimesh, direction: np.ndarray, base_z: float =
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_refined_cut_leaves_the_trunk_far_less_overhang_on_a_steep_branch(seed, monkeypatch):
+def test_refined_cut_leaves_the_trunk_far_less_overhang_on_a_steep_branch(seed):
     mesh = branched_pipe(STEEP)
-    settings = DecomposeSettings(seed=seed)
-    refined = decompose(mesh, settings, GEO, HEAD)
-    monkeypatch.setattr(refine, "REFINE_STEPS", 0)  # the paper's first feasible plane
-    first = decompose(mesh, settings, GEO, HEAD)
+    refined = decompose(mesh, DecomposeSettings(seed=seed), GEO, HEAD)
+    paper = DecomposeSettings(seed=seed, search=SearchSettings(refine_steps=0))
+    first = decompose(mesh, paper, GEO, HEAD)  # the paper's first feasible plane
     up = np.array([0.0, 0.0, 1.0])
     before = _overhang_area(first.subparts[0].mesh, up)
     after = _overhang_area(refined.subparts[0].mesh, up)
@@ -56,7 +55,7 @@ def test_refinement_never_raises_the_residual_of_the_first_plane():
     found = evaluate(ctx, Plane(np.array([0.0, 0.0, 25.0]) + 20.0 * axis, axis))
     assert found.ok
     parent = refine.ParentFrame(np.array([0.0, 0.0, 1.0]), Plane(np.zeros(3), np.eye(3)[2]))
-    out, _ = refine.refine_plane(ctx, found, parent, DecomposeSettings().search, rng)
+    out, _ = refine.refine_plane(ctx, found, parent, axis, DecomposeSettings().search, rng)
     assert out.ok and not out.tangled
     before = refine.residual_overhang(ctx, found.plane, found.child_faces, parent)
     after = refine.residual_overhang(ctx, out.plane, out.child_faces, parent)
