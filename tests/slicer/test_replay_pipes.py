@@ -75,13 +75,21 @@ def test_planar_control_of_a_steeper_branch_fails_both_wall_targets(sliced):
     assert len(rep["unsupported_wall_layers"]) > 0
 
 
-@pytest.mark.xfail(strict=True, reason="decomposition: the trunk sub-part keeps the 30° "
-                   "branch's junction overhang (its layers ~116-139 fail the wall rule)")
-def test_five_axis_print_of_a_steeper_branch_meets_both_wall_targets(sliced):
+def test_five_axis_print_of_a_steeper_branch_meets_the_wall_share_target(sliced):
+    """The refined cut (slicer.plane_refine) takes the 30° branch's root off the trunk: the
+    walls meet the share target and only a handful of layers stay above 5 %."""
+    five, planar = sliced("steep").replay, sliced("steep", planar=True).replay
+    assert five["collisions"] == 0
+    assert five["wall_supported"] >= 0.995 > planar["wall_supported"]
+    assert 5 * len(five["unsupported_wall_layers"]) < len(planar["unsupported_wall_layers"])
+
+
+@pytest.mark.xfail(strict=True, reason="the bore's arch in the trunk wall (3 layers at 5-7 %) "
+                   "and the branch's first layer on its near-vertical base (the parent's beads "
+                   "next to the cut are inset w/2, deeper than 1.5 layers) stay unsupported")
+def test_five_axis_print_of_a_steeper_branch_has_no_unsupported_wall_layer(sliced):
     rep = sliced("steep").replay
-    assert rep["collisions"] == 0
-    assert rep["wall_supported"] >= 0.995
-    assert not [n for n in rep["unsupported_wall_layers"] if n != "sub-part 0 layer 15"]
+    assert rep["unsupported_wall_layers"] == []
 
 
 def test_replaying_the_written_text_gives_the_same_figures(five_axis_pipe2, tmp_path):
