@@ -14,9 +14,11 @@ Layers
     suppression and a loop guard, ``busy`` keep-alives, timeout → ``M105`` nudge → link lost,
     reset and halt detection. Time is passed in; it returns actions.
 :mod:`~hostd.link.link`
-    ``SerialLink``: the asyncio shell (one reader task, one timer, one writer).
+    ``SerialLink``: the asyncio shell (replies handled in the port's callback, one timer,
+    one writer).
 :mod:`~hostd.link.transport`
-    ``open_port``: ``sim://`` (in-process emulator on a socket pair) or a real port / pty.
+    ``open_port``: ``sim://`` (in-process emulator on a socket pair) or a real port / pty,
+    as an asyncio transport with a line-splitting protocol; ``open_socket`` for any socket.
 
 Using the link
 --------------
