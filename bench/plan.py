@@ -5,6 +5,9 @@ planned in ≤ 3 s, a small share of the 10 s STL → checked G-code budget of `
 Each model is decomposed once, then planned N times (default 3); the fastest run is reported
 with its process CPU time next to the wall time (on a shared machine the wall time of a single
 run mostly measures the neighbours). The skeleton cache is cleared before every run.
+``--decompositions DIR`` keeps the decompositions in DIR, so another version of the planner
+runs on the same sub-parts: ``PYTHONPATH=/path/to/old/checkout .venv/bin/python bench/plan.py
+--decompositions DIR`` (the stages that version reports).
 
 Stages: sections, skeleton, layers (marching) and obstacles are wall seconds of the main
 thread; paths is the wall time of the toolpath stage that follows (all sub-parts at once, the
@@ -15,7 +18,10 @@ are the CPU seconds of the threads inside it (on two cores they add up to more t
 from __future__ import annotations
 
 import argparse
+import pickle
+from pathlib import Path
 
+import trimesh
 from harness import MODELS, best_of, check_models
 
 from kinematics.machine import MachineGeometry
@@ -35,9 +41,27 @@ def plan_once(dec: Decomposition) -> PrintPlan:
     return planner.plan_print(dec, ProcessSettings(), MachineGeometry(), Printhead.default())
 
 
+def decomposition(name: str, mesh: trimesh.Trimesh, cache: Path | None) -> Decomposition:
+    """The model's decomposition, from ``cache/NAME.pkl`` when there (saved there if not)."""
+    file = None if cache is None else cache / f"{name}.pkl"
+    if file is not None and file.exists():
+        with file.open("rb") as f:
+            return pickle.load(f)
+    dec = decompose(mesh, DecomposeSettings(), MachineGeometry(), Printhead.default())
+    if file is not None:
+        file.parent.mkdir(parents=True, exist_ok=True)
+        with file.open("wb") as f:
+            pickle.dump(dec, f)
+    return dec
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3, help="runs per model (best reported)")
+    parser.add_argument("--decompositions", type=Path, metavar="DIR",
+                        help="reuse the decomposition pickled in DIR/MODEL.pkl (written there "
+                        "the first time), so two versions of the planner (PYTHONPATH) are "
+                        "timed on the same sub-parts")
     parser.add_argument("models", nargs="*", help=f"any of {', '.join(MODELS)} (default: all)")
     args = parser.parse_args()
     names = check_models(parser, args.models)
@@ -45,7 +69,7 @@ def main() -> None:
           + " ".join(f"{k:>9}" for k in STAGES) + f" {'wall s':>7} {'cpu s':>6}")
     for name in names:
         mesh = MODELS[name]()
-        dec = decompose(mesh, DecomposeSettings(), MachineGeometry(), Printhead.default())
+        dec = decomposition(name, mesh, args.decompositions)
         plan, wall, cpu = best_of(lambda d=dec: plan_once(d), args.repeat)
         layers = [la for sp in plan.subparts for la in sp.layers]
         paths = sum(len(la.paths) for la in layers)

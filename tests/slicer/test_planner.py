@@ -286,3 +286,17 @@ def test_solid_under_walls_between_turned_planes() -> None:
     shifted = _plane(1, [0, 0, 0.2], [0, 0, 1], shapely.affinity.translate(disc, 0.05))
     (foot, _), _ = _footings(lower, shifted)
     assert foot.is_empty
+
+
+def test_plan_does_not_depend_on_the_thread_count(leaning, leaning_plan, monkeypatch) -> None:
+    from slicer import planner
+
+    monkeypatch.setattr(planner, "WORKERS", 1)
+    single = plan_print(leaning, S, G, Printhead.default())
+    pairs = [(a, b) for sa, sb in zip(single.subparts, leaning_plan.subparts, strict=True)
+             for la, lb in zip(sa.layers, sb.layers, strict=True)
+             for a, b in zip(la.paths, lb.paths, strict=True)]
+    assert pairs
+    for a, b in pairs:
+        assert a.kind == b.kind and a.closed == b.closed and a.width == b.width
+        assert np.array_equal(a.points, b.points) and np.array_equal(a.height, b.height)
