@@ -13,9 +13,8 @@ the quadrant); here every layer has its own A/C from the two-solution solver.
 
 from __future__ import annotations
 
-import os
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 
 import manifold3d as m3
@@ -35,7 +34,7 @@ from slicer.planes2d import from_plane, plane_frame, section, slicing_solid
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 from slicer.skeleton import SkeletonCurve, line_curve, skeleton_curve
-from slicer.subpart_paths import build_layers
+from slicer.subpart_paths import build_layers, pool, workers
 
 __all__ = ["SlicingError", "plan_planar", "plan_print"]
 
@@ -43,7 +42,6 @@ OBSTACLE_SPACING = 1.0  # mm between obstacle samples (printed surfaces and outl
 TIP_SPACING = 2.0  # mm between nozzle positions checked per layer
 CANDIDATE_SLACK = 1e-6  # mm: margin of the pre-filter of obstacle heights (≫ rounding)
 UP = np.array([0.0, 0.0, 1.0])
-WORKERS = min(4, os.cpu_count() or 1)  # threads of the per-layer polygon work
 
 _CURVES: dict[tuple, SkeletonCurve] = {}  # skeleton cache: (mesh hash, start, normal) → curve
 _SOLIDS: dict[int, tuple[trimesh.Trimesh, m3.Manifold]] = {}  # id(mesh) → (mesh, solid)
@@ -278,9 +276,10 @@ def plan_print(decomposition, settings: ProcessSettings, geometry: MachineGeomet
         marched.append((sp, base, layers, poses, kids))
         machine.parts = np.vstack([machine.parts, _surface_samples(sp.mesh, OBSTACLE_SPACING)])
         timer.lap("obstacles")
-    with ThreadPoolExecutor(WORKERS) as pool, ThreadPoolExecutor(len(marched) or 1) as builder:
+    threads = workers()
+    with pool(threads) as leaf, pool(min(threads, len(marched))) as builder:
         jobs = [builder.submit(build_layers, sp.index, layers, poses, settings,
-                               sp.parent is None, kids, pool)
+                               sp.parent is None, kids, leaf)
                 for sp, _, layers, poses, kids in marched]
         plans = [SubpartPlan(sp.index, sp.parent, None if sp.parent is None else base[0],
                              None if sp.parent is None else base[1],
@@ -319,8 +318,8 @@ def plan_planar(mesh: trimesh.Trimesh, settings: ProcessSettings,
     machine = _Machine(geometry, None, fixed=True)
     base = (np.array([0.0, 0.0, float(mesh.bounds[0][2])]), UP.copy(), True)
     layers, poses = _slice_subpart(0, mesh, base, settings, machine, timer)
-    with ThreadPoolExecutor(WORKERS) as pool:
-        plan_layers, seconds = build_layers(0, layers, poses, settings, True, [], pool)
+    with pool(workers()) as leaf:
+        plan_layers, seconds = build_layers(0, layers, poses, settings, True, [], leaf)
     timer.lap("paths")
     timer.laps.update({k: timer.laps.get(k, 0.0) + v for k, v in seconds.items()})
     sub = SubpartPlan(0, None, None, None, UP.copy(), plan_layers)

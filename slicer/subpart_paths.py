@@ -23,9 +23,10 @@ summed over tasks: on two cores they add up to more than the wall time.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Sequence
-from concurrent.futures import Executor, Future
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import TypeVar
 
@@ -42,6 +43,33 @@ from slicer.toolpaths import FillSpec, Path2D, Shell, fill_paths, layer_paths, s
 from slicer.zones import solid_zone, wall_footing
 
 T = TypeVar("T")
+MAX_WORKERS = 4
+
+
+class InlineExecutor(Executor):
+    """Runs each task when it is submitted, in the caller's thread (no pool)."""
+
+    def submit(self, fn: Callable[..., T], /, *args: object, **kwargs: object) -> Future[T]:
+        done: Future[T] = Future()
+        try:
+            done.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # delivered by result(), as a pool would
+            done.set_exception(exc)
+        return done
+
+
+def workers() -> int:
+    """Threads for the per-layer polygon work: one per idle core (by the 1-min load average),
+    at most :data:`MAX_WORKERS`; 1 means inline. On a busy machine two threads only fight
+    for the GIL and one core."""
+    cores = os.cpu_count() or 1
+    idle = cores - os.getloadavg()[0] if hasattr(os, "getloadavg") else cores
+    return max(1, min(MAX_WORKERS, int(idle + 0.5)))
+
+
+def pool(threads: int) -> Executor:
+    """A thread pool of ``threads``, or an :class:`InlineExecutor` for one."""
+    return ThreadPoolExecutor(threads) if threads > 1 else InlineExecutor()
 
 
 def fill_spec(settings: ProcessSettings) -> FillSpec:

@@ -288,15 +288,26 @@ def test_solid_under_walls_between_turned_planes() -> None:
     assert foot.is_empty
 
 
-def test_plan_does_not_depend_on_the_thread_count(leaning, leaning_plan, monkeypatch) -> None:
+def test_plan_does_not_depend_on_the_thread_count(leaning, monkeypatch) -> None:
     from slicer import planner
 
-    monkeypatch.setattr(planner, "WORKERS", 1)
-    single = plan_print(leaning, S, G, Printhead.default())
-    pairs = [(a, b) for sa, sb in zip(single.subparts, leaning_plan.subparts, strict=True)
+    plans = []
+    for threads in (1, 2):
+        monkeypatch.setattr(planner, "workers", lambda n=threads: n)
+        plans.append(plan_print(leaning, S, G, Printhead.default()))
+    pairs = [(a, b) for sa, sb in zip(*(p.subparts for p in plans), strict=True)
              for la, lb in zip(sa.layers, sb.layers, strict=True)
              for a, b in zip(la.paths, lb.paths, strict=True)]
     assert pairs
     for a, b in pairs:
         assert a.kind == b.kind and a.closed == b.closed and a.width == b.width
         assert np.array_equal(a.points, b.points) and np.array_equal(a.height, b.height)
+
+
+def test_inline_executor_delivers_results_and_errors() -> None:
+    from slicer.subpart_paths import InlineExecutor
+
+    ex = InlineExecutor()
+    assert list(ex.map(lambda x: x * x, [1, 2, 3])) == [1, 4, 9]
+    with pytest.raises(ZeroDivisionError):
+        ex.submit(lambda: 1 / 0).result()
