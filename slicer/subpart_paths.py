@@ -59,12 +59,12 @@ class InlineExecutor(Executor):
 
 
 def workers() -> int:
-    """Threads for the per-layer polygon work: one per idle core (by the 1-min load average),
-    at most :data:`MAX_WORKERS`; 1 means inline. On a busy machine two threads only fight
-    for the GIL and one core."""
+    """Threads for the per-layer polygon work: one per core not busy with other work (by the
+    1-min load average, less the one thread of this slice), at most :data:`MAX_WORKERS`;
+    1 means inline. On a busy machine two threads only fight for the GIL and one core."""
     cores = os.cpu_count() or 1
-    idle = cores - os.getloadavg()[0] if hasattr(os, "getloadavg") else cores
-    return max(1, min(MAX_WORKERS, int(idle + 0.5)))
+    busy = max(0.0, os.getloadavg()[0] - 1.0) if hasattr(os, "getloadavg") else 0.0
+    return max(1, min(MAX_WORKERS, int(cores - busy + 0.5)))
 
 
 def pool(threads: int) -> Executor:
