@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from handmade_plans import H, box_plan, prism_layers, prism_mesh, two_part_plan
+from handmade_plans import H, box_plan, frame, prism_layers, prism_mesh, two_part_plan
 
 from kinematics.machine import MachineGeometry
 from slicer import replay_collide
@@ -12,6 +12,7 @@ from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import parse_lines
 from slicer.plan import PrintPlan, SubpartPlan
 from slicer.replay import replay_check
+from slicer.replay_geometry import ModelIndex
 from slicer.samples import to_manifold, to_trimesh
 from slicer.settings import ProcessSettings
 
@@ -129,3 +130,17 @@ def test_one_thread_and_two_give_the_same_figures():
             rep.pop(timing)
     assert one["wall_supported"] < 1.0  # the figures under comparison are not trivial
     assert one == two
+
+
+def test_inside_test_with_coarse_lines_casts_rays_near_the_surface():
+    d = np.array([0.0, -np.sin(np.radians(30)), np.cos(np.radians(30))])
+    mesh = prism_mesh(np.zeros(3), d, 3.0, 6.0)  # a tilted box: no face along the lines
+    model = ModelIndex(np.asarray(mesh.vertices), np.asarray(mesh.faces), inside_pitch=1.0)
+    lo, hi = mesh.bounds
+    p = np.random.default_rng(3).uniform(lo - 0.5, hi + 0.5, size=(4000, 3))
+    _, e1, e2 = frame(d)
+    local = np.column_stack([p @ e1, p @ e2, p @ d])
+    truth = (np.abs(local[:, :2]) < 3.0).all(axis=1) & (local[:, 2] > 0) & (local[:, 2] < 6.0)
+    near = np.isfinite(model.distance(p, 1.0 / np.sqrt(2.0)))
+    assert near.sum() > 500  # many points are left to the rays
+    assert np.array_equal(model.inside(p), truth)
