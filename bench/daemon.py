@@ -101,13 +101,14 @@ async def spawn_emulator() -> tuple[asyncio.subprocess.Process, str]:
     return proc, path
 
 
-async def spawn_daemon(tmp: Path, port: str, profile: str | None
+async def spawn_daemon(tmp: Path, port: str, profile: str | None, partial: bool
                        ) -> tuple[asyncio.subprocess.Process, asyncio.Task[None]]:
     cfg = tmp / "hostd.yaml"
     cfg.write_text(json.dumps({
         "daemon": {"socket": str(tmp / "hostd.sock"), "state_dir": str(tmp / "state"),
                    "log_level": "info"},
-        "metrics": {"enabled": False}, "serial": {"port": port, "baud": BAUD},
+        "metrics": {"enabled": False},
+        "serial": {"port": port, "baud": BAUD, "partial_lines": partial},
         "sim": {"throttle": True}}))
     prof = ["-m", "cProfile", "-o", profile] if profile else []
     proc = await asyncio.create_subprocess_exec(
@@ -168,12 +169,13 @@ def wire_limit(text: str) -> float:
     return BAUD / 10 / (wire / len(cmds))
 
 
-async def bench(tmp: Path, in_process: bool, profile: str | None) -> dict[str, float]:
+async def bench(tmp: Path, in_process: bool, profile: str | None,
+                partial: bool) -> dict[str, float]:
     emu = None
     port = "sim://"
     if not in_process:
         emu, port = await spawn_emulator()
-    proc, drain = await spawn_daemon(tmp, port, profile)
+    proc, drain = await spawn_daemon(tmp, port, profile, partial)
     try:
         r, w = await asyncio.open_unix_connection(str(tmp / "hostd.sock"))
         c = Client(r, w)
@@ -198,12 +200,16 @@ def main() -> int:
     ap.add_argument("--in-process", action="store_true",
                     help="emulator inside the daemon (sim://): CPU includes the emulator")
     ap.add_argument("--profile", metavar="FILE", help="run hostd under cProfile, stats to FILE")
+    ap.add_argument("--partial-lines", action=argparse.BooleanOptionalAction, default=True,
+                    help="serial.partial_lines (the first part of a line goes out when the "
+                         "credit is short)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="hostd-bench-") as name:
-        res = asyncio.run(bench(Path(name), args.in_process, args.profile))
+        res = asyncio.run(bench(Path(name), args.in_process, args.profile, args.partial_lines))
     mode = "in-process sim:// (CPU includes the emulator)" if args.in_process else \
         "emulator in its own process on a pty"
-    print(f"hostd daemon bench, {BAUD} baud, {mode}")
+    print(f"hostd daemon bench, {BAUD} baud, {mode}, "
+          f"partial lines {'on' if args.partial_lines else 'off'}")
     for key, value in res.items():
         target = TARGETS.get(key)
         mark = "" if target is None else (" ok" if value < target else " OVER TARGET")

@@ -124,6 +124,9 @@ SCHEMA: dict[str, dict[str, Field]] = {
                              "window", choices=("window", "pingpong")),
         "rx_buffer_bytes": Number("Firmware receive buffer the window may fill, bytes.", 127,
                                   lo=16, hi=65536, integer=True),
+        "partial_lines": Flag("Window mode: send the first part of the next line when the "
+                              "credit is short of the whole line (fills the receive buffer "
+                              "to the byte); false: whole lines only.", True),
         "ok_timeout": Number("Seconds without an ok before nudging with M105.", 10.0,
                              lo=0.05, hi=3600),
         "nudges": Number("M105 nudges after successive timeouts before the link is lost.", 1,

@@ -10,7 +10,8 @@ Layers
     ``Capability``, ``Banner``, ``Other``).
 :mod:`~hostd.link.protocol`
     Pure state machine ``Protocol``: numbering, checksums, send window (ping-pong or
-    buffer credit, halved after each resend), resends from a history ring with duplicate
+    buffer credit, halved after each resend; with ``partial_lines`` the credit is filled to
+    the byte, the next line going out in parts), resends from a history ring with duplicate
     suppression and a loop guard, ``busy`` keep-alives, timeout → ``M105`` nudge → link lost,
     reset and halt detection. Time is passed in; it returns actions.
 :mod:`~hostd.link.link`
@@ -58,8 +59,9 @@ by itself; after a halt, call ``connect()`` again.
 
 ``status()`` keys: ``state``, ``connected``, ``port``, ``firmware_name``, ``capabilities``,
 ``temperatures`` (heater → actual/target/power), ``position`` (X, Y, Z, A, C, E),
-``lines_sent``, ``lines_acked``, ``lines_resent``, ``resend_requests``, ``duplicate_resends``,
-``checksum_errors``, ``line_errors``, ``timeouts``, ``resets``, ``window_bytes``,
+``lines_sent``, ``lines_acked``, ``lines_resent``, ``lines_split`` (lines sent in parts),
+``resend_requests``, ``duplicate_resends``, ``checksum_errors``, ``line_errors``, ``timeouts``,
+``resets``, ``window_bytes``,
 ``flow_control``, ``inflight_lines``, ``inflight_bytes``, ``queued_lines``, ``planner_free``,
 ``buffer_free``, ``advanced_ok``, ``ok_rtt`` (count, last/mean/max ms), ``reconnects``,
 ``last_error``.

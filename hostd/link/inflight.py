@@ -21,21 +21,18 @@ class Sent:
     """One transmission of an item (a resent line is transmitted more than once)."""
 
     item: Item
+    number: int  # the line number on the wire (the item's)
     epoch: int
     sent_at: float
+    written: int  # bytes on the wire so far (fewer than the line's while it goes in parts)
     counted: bool = True  # still holds window credit
-
-    @property
-    def number(self) -> int:
-        """The line number on the wire."""
-        assert self.item.number is not None
-        return self.item.number
 
 
 class InFlight:
     """Transmissions not yet answered by an ``ok``, in transmission order.
 
-    ``bytes`` and ``lines`` count only transmissions that still hold window credit.
+    ``bytes`` and ``lines`` count only transmissions that still hold window credit; a line
+    going out in parts holds the credit of the bytes written so far.
     """
 
     def __init__(self) -> None:
@@ -49,8 +46,14 @@ class InFlight:
     def add(self, sent: Sent) -> None:
         """Record a transmission."""
         self._entries.append(sent)
-        self.bytes += len(sent.item.data)
+        self.bytes += sent.written
         self.lines += 1
+
+    def extend(self, sent: Sent, count: int) -> None:
+        """``count`` more bytes of the line ``sent`` went out."""
+        sent.written += count
+        if sent.counted:
+            self.bytes += count
 
     def after_first(self, number: int) -> tuple[int, int]:
         """Lines and bytes holding credit after the first transmission of line ``number``.
@@ -61,7 +64,7 @@ class InFlight:
         for i, sent in enumerate(self._entries):
             if sent.number == number:
                 rest = [s for s in self._entries[i + 1:] if s.counted]
-                return len(rest), sum(len(s.item.data) for s in rest)
+                return len(rest), sum(s.written for s in rest)
         return self.lines, self.bytes
 
     def first_from(self, number: int) -> Sent | None:
@@ -71,27 +74,28 @@ class InFlight:
                 return sent
         return None
 
-    def find(self, number: int) -> Sent | None:
-        """The latest transmission of line ``number``."""
-        for sent in reversed(self._entries):
-            if sent.number == number:
-                return sent
-        return None
-
     def remove(self, sent: Sent) -> None:
         """Forget one transmission (it was answered)."""
         self._entries.remove(sent)
         self._release(sent)
 
-    def drop_through(self, number: int) -> None:
-        """Forget every transmission of lines up to ``number`` (they have been executed)."""
+    def drop_through(self, number: int) -> Sent | None:
+        """Forget every transmission of lines up to ``number`` (they have been executed);
+        returns the latest transmission of ``number`` itself, if any."""
         keep = []
+        latest = None
         for sent in self._entries:
-            if sent.number <= number:
-                self._release(sent)
-            else:
+            if sent.number > number:
                 keep.append(sent)
+                continue
+            if sent.number == number:
+                latest = sent
+            if sent.counted:
+                sent.counted = False
+                self.bytes -= sent.written
+                self.lines -= 1
         self._entries = keep
+        return latest
 
     def uncount(self) -> None:
         """Release the credit of every transmission (the firmware's buffer is known empty)."""
@@ -109,5 +113,5 @@ class InFlight:
     def _release(self, sent: Sent) -> None:
         if sent.counted:
             sent.counted = False
-            self.bytes -= len(sent.item.data)
+            self.bytes -= sent.written
             self.lines -= 1

@@ -32,6 +32,33 @@ rejects (bad checksum, wrong number) is answered at once, out of order, by ``Err
   ADVANCED_OK the credit stays within the receive buffer alone;
 - on a timeout the next line (or a numbered ``M105``) is sent as a nudge; a second timeout
   without any ``ok`` declares the link lost.
+
+Lines in parts (``partial_lines``, window mode)
+-----------------------------------------------
+The receive buffer holds bytes, not lines, so when the credit is short of the next line its
+first part goes out at once and the rest follows as answers free credit (character counting,
+as Grbl's streaming protocol). The part written holds credit like a whole line; the firmware
+acts only on complete lines, so nothing else goes on the wire until the line is whole:
+
+- it counts as transmitted (history, line number, epoch) from its first byte. A ``Resend: k``
+  always names a line before it (the firmware has not seen it whole), so the rewind replays
+  ``k`` up to and including it *after* its rest has gone out: the finished old copy is then
+  rejected like every other line of the old epoch, and its ``Resend`` is a duplicate;
+- no ``ok`` can be for it or a later line, nor can ``ok N.. B..`` show it read out, until it
+  is whole;
+- a timeout releases all credit: the rest goes out, then the ``M105`` nudge;
+- ``M112`` goes out right after the rest of the line. Ending the line early with a newline
+  would be a byte or two faster, but it puts a truncated line in front of the firmware and
+  relies on every dialect rejecting it (Marlin does: a prefix of a numbered line has no
+  valid checksum); the finished line is one the firmware expects anyway;
+- after a firmware reset (or a lost port) the rest is dropped, never sent: the rebooted board
+  must not get the tail of an old line, which without its ``N`` and with its ``*`` cut off
+  could pass as a command. A prefix that reached the new board joins the ``M110`` handshake
+  into one line with a ``*`` and no valid number or checksum, which is rejected, and the
+  handshake timeout sends ``M110`` again;
+- when it is the only line holding credit, the rest goes out whatever the window (the
+  firmware has answered everything before it, so its main loop is reading): as a whole line
+  longer than the window goes out when nothing else is in flight.
 """
 
 from __future__ import annotations
@@ -143,7 +170,11 @@ class Protocol:
         return None
 
     def emergency_stop(self, now: float) -> list[Action]:
-        """Send ``M112`` at once, ahead of the window and the queue, and fail the job."""
+        """Send ``M112`` at once, ahead of the window and the queue, and fail the job.
+
+        A line going out in parts is finished first (see the module docstring).
+        """
+        self._finish_partial()
         self._out.append(Write(encode("M112")))
         self._fail(errors.EmergencyStop("emergency stop (M112) sent", self.last_acked), "halted")
         return self._flush()
@@ -198,6 +229,7 @@ class Protocol:
         self._pending: deque[Item] = deque()
         self._resend: deque[Item] = deque()
         self._inflight = InFlight()
+        self._partial: Sent | None = None  # the line going out in parts, if any
         self._after_resend: int | None = None
         self._nudged = 0
         self._progress = now
@@ -224,6 +256,7 @@ class Protocol:
         self._pending.clear()
         self._resend.clear()
         self._inflight.clear()
+        self._partial = None  # its rest is never sent (see the module docstring)
         self.state = state
 
     # -- sending ------------------------------------------------------------------------
@@ -237,7 +270,17 @@ class Protocol:
     def _pump(self, now: float) -> None:
         if self.state != "ready":
             return
-        inflight = self._inflight
+        # lines and bytes that may still be in the firmware's receive buffer; every
+        # transmission below adds one line and its bytes
+        if self._read_through > self._executed:
+            lines, nbytes = self._inflight.after_first(self._read_through)
+        else:
+            lines, nbytes = self._inflight.lines, self._inflight.bytes
+        if self._partial is not None:
+            nbytes += self._continue_partial(lines, nbytes)
+            if self._partial is not None:
+                return
+        window = self.window
         while True:
             queue = self._resend or self._pending
             if not queue:
@@ -245,33 +288,78 @@ class Protocol:
             item = queue[0]
             # not framed yet: "N<next> " + command + "*<checksum, at most 3 digits>\n"
             size = len(item.data) if item.data else len(item.command) + len(str(self._next)) + 7
-            if self._read_through > self._executed:
-                lines, nbytes = inflight.after_first(self._read_through)
+            if lines and not window.fits(lines, nbytes, size):
+                room = window.room(nbytes) if self.settings.partial_lines else 0
+                if room <= 0:
+                    return
+                queue.popleft()
+                nbytes += self._transmit(item, now, room)  # framed, it may fit whole
+                if self._partial is not None:
+                    return
             else:
-                lines, nbytes = inflight.lines, inflight.bytes
-            if lines and not self.window.fits(lines, nbytes, size):
-                return
-            queue.popleft()
-            self._transmit(item, now)
+                queue.popleft()
+                nbytes += self._transmit(item, now)
+            lines += 1
 
-    def _transmit(self, item: Item, now: float) -> None:
-        if item.number is None:
-            item.number = self._next
+    def _transmit(self, item: Item, now: float, room: int | None = None) -> int:
+        """Write ``item`` (only its first ``room`` bytes if the whole line is longer);
+        returns the bytes written."""
+        number = item.number
+        if number is None:
+            number = item.number = self._next
             self._next += 1
-            item.data = encode(frame(item.number, item.command))
-            self._history[item.number] = item
+            item.data = encode(frame(number, item.command))
+            self._history[number] = item
         if self._sent_max <= self._executed and not self._inflight:
             self._progress = now
-        self._out.append(Write(item.data))
-        self._inflight.add(Sent(item, self._epoch, now))
+        data = item.data
+        sent = Sent(item, number, self._epoch, now, len(data))
+        if room is not None and room < sent.written:
+            data = data[:room]
+            sent.written = room
+            self._partial = sent
+            self.counters.lines_split += 1
+        self._out.append(Write(data))
+        self._inflight.add(sent)
         if item.command.startswith(NUDGE) and item.command[4:5] in ("", " "):
-            self._m105.append(item.number)
+            self._m105.append(number)
         if item.kind == "handshake":
-            return
+            return sent.written
         self.counters.lines_sent += 1
-        if item.number <= self._sent_max:
+        if number <= self._sent_max:
             self.counters.lines_resent += 1
-        self._sent_max = max(self._sent_max, item.number)
+        self._sent_max = max(self._sent_max, number)
+        return sent.written
+
+    def _continue_partial(self, lines: int, nbytes: int) -> int:
+        """Write what the credit (``lines`` and ``nbytes`` used) allows of the line going out
+        in parts; returns the credit that took."""
+        sent = self._partial
+        assert sent is not None
+        data = sent.item.data
+        start = sent.written
+        count = len(data) - start
+        if sent.counted and lines > 1:  # else it alone holds credit: the rest goes out
+            count = min(count, self.window.room(nbytes))
+        if count <= 0:
+            return 0
+        self._out.append(Write(data[start:start + count]))
+        self._inflight.extend(sent, count)
+        if start + count == len(data):
+            self._partial = None
+        return count if sent.counted else 0
+
+    def _finish_partial(self) -> None:
+        """Write the rest of the line going out in parts, whatever the credit."""
+        sent = self._partial
+        if sent is not None:
+            self._out.append(Write(sent.item.data[sent.written:]))
+            self._inflight.extend(sent, len(sent.item.data) - sent.written)
+            self._partial = None
+
+    def _whole_max(self) -> int:
+        """The highest line number the firmware may have received whole (and so executed)."""
+        return self._sent_max if self._partial is None else self._partial.number - 1
 
     # -- ok -----------------------------------------------------------------------------
 
@@ -284,7 +372,7 @@ class Protocol:
         if self._after_resend is not None:
             rejected = self._inflight.first_from(self._after_resend)
             self._after_resend = None
-            if rejected is not None:
+            if rejected is not None and rejected is not self._partial:  # not seen whole
                 self._inflight.remove(rejected)
             return
         if ok.line is not None and ok.buffer_free is not None:
@@ -298,27 +386,28 @@ class Protocol:
         """ADVANCED_OK ``ok N<line> B<free>``: see the module docstring for why it is sound."""
         self._slots_seen = max(self._slots_seen, free)
         # never beyond the lines sent: a later first transmission would be counted as read
-        queued = min(line + self._slots_seen - free, self._sent_max)
+        queued = min(line + self._slots_seen - free, self._whole_max())
         self._read_through = max(self._read_through, queued)
 
     def _executed_by(self, ok: Ok) -> int:
         """The line number this success ``ok`` shows executed."""
+        # not the line going out in parts, nor any later one (see _whole_max)
+        limit = self._sent_max if self._partial is None else self._partial.number - 1
         if ok.line is not None:
-            return ok.line if self._executed < ok.line <= self._sent_max else self._executed
+            return ok.line if self._executed < ok.line <= limit else self._executed
         if ok.temperatures is not None:
             while self._m105 and self._m105[0] <= self._executed:
                 self._m105.popleft()
-            if self._m105:
+            if self._m105 and self._m105[0] <= limit:
                 return self._m105.popleft()
-        return min(self._executed + 1, self._sent_max)
+        return min(self._executed + 1, limit)
 
     def _execute_through(self, line: int, ok: Ok, now: float) -> None:
-        sent = self._inflight.find(line)
+        sent = self._inflight.drop_through(line)
         if sent is not None:
             self.rtt.add(now - sent.sent_at)
         first = self._executed + 1
         self._executed = line
-        self._inflight.drop_through(line)
         self.window.grow()
         for number in range(first, line + 1):
             item = self._history.get(number)
@@ -462,6 +551,7 @@ class Protocol:
         # otherwise a numbered M105, whose ``ok T:`` also resynchronises the ok count.
         self._inflight.uncount()
         self._m105.clear()
+        self._finish_partial()
         if not self._resend:
             self._transmit(Item(NUDGE, None, "nudge"), now)
 

@@ -23,6 +23,10 @@ class LinkSettings:
         ``window`` (buffer credit) or ``pingpong`` (one line in flight).
     rx_buffer_bytes
         Firmware receive buffer the window may fill, bytes.
+    partial_lines
+        In window mode, send the first part of the next line when the credit is short of the
+        whole line (character counting, as Grbl's streaming protocol): the receive buffer holds
+        bytes, not lines, so it may be filled to exactly its size.
     ok_timeout
         Seconds without progress before the M105 nudge; as long again before the link is lost.
     nudges
@@ -45,6 +49,7 @@ class LinkSettings:
     baud: int = 115200
     flow_control: str = "window"
     rx_buffer_bytes: int = 127
+    partial_lines: bool = True
     ok_timeout: float = 10.0
     nudges: int = 1
     resend_limit: int = 10
@@ -61,7 +66,8 @@ def link_settings_from_config(cfg: Config) -> LinkSettings:
     s = cfg.section("serial")
     return LinkSettings(
         port=s["port"], baud=int(s["baud"]), flow_control=s["flow_control"],
-        rx_buffer_bytes=int(s["rx_buffer_bytes"]), ok_timeout=float(s["ok_timeout"]),
+        rx_buffer_bytes=int(s["rx_buffer_bytes"]), partial_lines=bool(s["partial_lines"]),
+        ok_timeout=float(s["ok_timeout"]),
         nudges=int(s["nudges"]),
         resend_limit=int(s["resend_limit"]), history_size=int(s["history_size"]),
         handshake_timeout=float(s["handshake_timeout"]),

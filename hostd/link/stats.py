@@ -14,6 +14,7 @@ class LinkCounters:
     lines_sent: int = 0
     lines_acked: int = 0
     lines_resent: int = 0
+    lines_split: int = 0  # lines whose first part went out ahead of the credit for the rest
     resend_requests: int = 0
     duplicate_resends: int = 0
     checksum_errors: int = 0

@@ -30,6 +30,10 @@ class SendWindow:
             return False
         return inflight_bytes + length <= self.size
 
+    def room(self, inflight_bytes: int) -> int:
+        """Bytes of a line that may go out now beside ``inflight_bytes`` (none in ping-pong)."""
+        return self.size - inflight_bytes if self.mode == "window" else 0
+
     def shrink(self) -> None:
         """Halve the window after an error (never below one line in flight)."""
         self.size = max(0, self.size // 2)

@@ -34,6 +34,7 @@ class Command:
     number: int | None
     text: str
     started: bool = False
+    until: float | None = None  # a dwell's end, fixed when first asked
     code: str = ""
     words: dict[str, float] = field(default_factory=dict)
 
@@ -82,10 +83,13 @@ class Machine:
             if cmd.code == "G28":
                 return self.planner.idle_at(now)
             return now if self.planner.free(now) > 0 else self.planner.next_free_at()
-        if cmd.code in ("M400", "M84", "G4"):
-            return self.planner.idle_at(now) + (cmd.words.get("P", 0) / 1000.0
-                                                 + cmd.words.get("S", 0)
-                                                 if cmd.code == "G4" else 0.0)
+        if cmd.code == "G4":  # the planner drains, then the dwell runs from then on
+            if cmd.until is None:
+                cmd.until = self.planner.idle_at(now) + (cmd.words.get("P", 0) / 1000.0
+                                                         + cmd.words.get("S", 0))
+            return cmd.until
+        if cmd.code in ("M400", "M84"):
+            return self.planner.idle_at(now)
         if cmd.code == "M109":
             return max(now, self.hotend.reached_at(now))
         if cmd.code == "M190":

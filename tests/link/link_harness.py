@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 from hostd.link.actions import Acked, Action, Answer, Connected, Failed, Write
 from hostd.link.errors import LinkError
+from hostd.link.framing import checksum
 from hostd.link.protocol import Protocol
 from hostd.link.settings import LinkSettings
 from hostd.sim.firmware import Firmware
@@ -163,6 +164,23 @@ class VirtualBench:
         else:
             assert isinstance(payload, str)
             self._apply(self.protocol.receive(payload, self.now))
+
+
+def wire_lines(sent: list[bytes]) -> list[bytes]:
+    """The lines the host put on the wire (writes joined: a line may go out in parts)."""
+    *lines, rest = b"".join(sent).split(b"\n")
+    assert rest == b"", f"a line was left unfinished: {rest!r}"
+    return lines
+
+
+def assert_whole_valid_lines(sent: list[bytes]) -> None:
+    """Every line on the wire is a whole, valid framed line (or M112): the parts of a line
+    that went out in parts were never interleaved with anything else."""
+    for line in wire_lines(sent):
+        if line == b"M112":
+            continue
+        body, star, cs = line.partition(b"*")
+        assert line[:1] == b"N" and star and int(cs) == checksum(body.decode()), line
 
 
 def job_log(firmware: Firmware) -> list[str]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import random
 
 import pytest
@@ -44,10 +45,11 @@ async def collect(link: SerialLink, lines: list[str]) -> list[int]:
 
 
 @pytest.mark.asyncio
-async def test_stream_with_faults_executes_everything_once_and_reports_status() -> None:
+@pytest.mark.parametrize("rx", [127, 63])
+async def test_stream_with_faults_executes_everything_once_and_reports_status(rx: int) -> None:
     sim = SimSettings(bit_flip_prob=0.01, lost_ok_prob=0.002, busy_prob=0.01,
-                      busy_seconds=0.5, seed=5)
-    link = SerialLink(FAST, sim)
+                      busy_seconds=0.5, rx_buffer_bytes=rx, seed=5)
+    link = SerialLink(dataclasses.replace(FAST, rx_buffer_bytes=rx), sim)
     lines = ["; sliced", "", *moves(3000)]
     async with asyncio.timeout(60):
         await link.connect()
@@ -62,6 +64,7 @@ async def test_stream_with_faults_executes_everything_once_and_reports_status() 
     assert status["connected"] and status["firmware_name"].startswith("Marlin")
     assert status["lines_acked"] >= 3000 and status["checksum_errors"] > 0
     assert status["lines_resent"] > 0 and status["ok_rtt"]["count"] > 0
+    assert status["lines_split"] > 0 and firmware.dropped_bytes == 0  # lines went in parts
     assert isinstance(position, Position) and set("XYZAC") <= set(position.axes)
     assert isinstance(temps, Temperatures) and "T" in temps.heaters
 

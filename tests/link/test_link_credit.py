@@ -9,6 +9,7 @@ byte, with faults, and that the credit is really used.
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from link_harness import VirtualBench
@@ -34,12 +35,13 @@ knobs = st.fixed_dictionaries({
 
 
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(sim=knobs, length=st.integers(1, 600), latency=st.sampled_from([0.0001, 0.002]))
+@given(sim=knobs, length=st.integers(1, 600), latency=st.sampled_from([0.0001, 0.002]),
+       partial=st.booleans())
 def test_the_board_never_drops_a_byte_under_the_hosts_credit(
-        sim: dict[str, object], length: int, latency: float) -> None:
+        sim: dict[str, object], length: int, latency: float, partial: bool) -> None:
     commands = sliced_like(length, int(sim["seed"]))  # type: ignore[call-overload]
     link = LinkSettings(rx_buffer_bytes=int(sim["rx_buffer_bytes"]),  # type: ignore[call-overload]
-                        ok_timeout=5.0, nudges=3)
+                        partial_lines=partial, ok_timeout=5.0, nudges=3)
     bench = VirtualBench(link, SimSettings(**sim), latency=latency)  # type: ignore[arg-type]
     assert bench.connect()
     bench.stream(commands)
@@ -47,14 +49,16 @@ def test_the_board_never_drops_a_byte_under_the_hosts_credit(
     assert bench.firmware.rx_high_water <= int(sim["rx_buffer_bytes"])  # type: ignore[call-overload]
 
 
-def stream_planner_bound(advanced_ok: bool, bit_flip_prob: float = 0.0) -> VirtualBench:
+def stream_planner_bound(advanced_ok: bool, bit_flip_prob: float = 0.0,
+                         partial: bool = False) -> VirtualBench:
     """Long moves: the planner is full, commands wait in the queue, the buffer fills; after
     each command the main loop leaves the buffer alone for a while (so a line the host wrongly
     believes read out is still there)."""
     commands = [f"G1 X{i % 50 * 2} Y{i % 7} F600" for i in range(400)]
     sim = SimSettings(rx_buffer_bytes=63, queue_slots=4, advanced_ok=advanced_ok,
                       bit_flip_prob=bit_flip_prob, read_delay=0.003, seed=3)
-    bench = VirtualBench(LinkSettings(rx_buffer_bytes=63, ok_timeout=30.0, nudges=3), sim)
+    link = LinkSettings(rx_buffer_bytes=63, partial_lines=partial, ok_timeout=30.0, nudges=3)
+    bench = VirtualBench(link, sim)
     assert bench.connect()
     bench.stream(commands)
     assert_exactly_once(bench, commands)
@@ -66,20 +70,29 @@ def test_without_advanced_ok_the_host_stays_within_the_receive_buffer() -> None:
     assert bench.outcome.max_inflight_bytes <= 63
 
 
-def test_advanced_ok_lets_the_queued_lines_out_of_the_credit_without_a_loss() -> None:
-    bench = stream_planner_bound(advanced_ok=True)
+def test_lines_in_parts_fill_the_receive_buffer_to_the_byte_without_a_loss() -> None:
+    bench = stream_planner_bound(advanced_ok=False, partial=True)
+    assert bench.outcome.max_inflight_bytes == 63 and bench.firmware.rx_high_water == 63
+    assert bench.protocol.counters.lines_split > 0
+
+
+@pytest.mark.parametrize("partial", [False, True])
+def test_advanced_ok_lets_the_queued_lines_out_of_the_credit_without_a_loss(
+        partial: bool) -> None:
+    bench = stream_planner_bound(advanced_ok=True, partial=partial)
     assert bench.outcome.max_inflight_bytes > 63  # the command queue's lines left the credit
     assert bench.firmware.rx_high_water <= 63 and bench.firmware.dropped_bytes == 0
 
 
-def test_advanced_ok_credit_survives_corrupted_lines() -> None:
-    bench = stream_planner_bound(advanced_ok=True, bit_flip_prob=0.05)
+@pytest.mark.parametrize("partial", [False, True])
+def test_advanced_ok_credit_survives_corrupted_lines(partial: bool) -> None:
+    bench = stream_planner_bound(advanced_ok=True, bit_flip_prob=0.05, partial=partial)
     assert bench.protocol.counters.lines_resent > 0
     assert bench.outcome.max_inflight_bytes > 63
 
 
 def handshaken(rx: int) -> Protocol:
-    proto = Protocol(LinkSettings(rx_buffer_bytes=rx))
+    proto = Protocol(LinkSettings(rx_buffer_bytes=rx, partial_lines=False))
     proto.start(0.0)
     proto.receive("ok", 0.0)
     return proto

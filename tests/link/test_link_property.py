@@ -11,7 +11,7 @@ import random
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from link_harness import VirtualBench, job_log
+from link_harness import VirtualBench, assert_whole_valid_lines, job_log
 
 from hostd.link.settings import LinkSettings
 from hostd.sim.settings import SimSettings
@@ -50,6 +50,7 @@ def assert_exactly_once(bench: VirtualBench, commands: list[str]) -> None:
     assert outcome.ack_ahead_of_execution == [], "acknowledged a line not yet executed"
     assert outcome.acked == sorted(set(outcome.acked))
     assert outcome.acked[-1] == len(commands)
+    assert_whole_valid_lines(outcome.sent)
 
 
 faults = st.fixed_dictionaries({
@@ -63,29 +64,33 @@ faults = st.fixed_dictionaries({
 
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(knobs=faults, flow=st.sampled_from(["window", "pingpong"]), length=st.integers(1, 1500))
+@given(knobs=faults, flow=st.sampled_from(["window", "pingpong"]), length=st.integers(1, 1500),
+       partial=st.booleans())
 def test_random_fault_schedules_execute_every_line_once_in_order(
-        knobs: dict[str, object], flow: str, length: int) -> None:
+        knobs: dict[str, object], flow: str, length: int, partial: bool) -> None:
     commands = sliced_like(length, int(knobs["seed"]))  # type: ignore[call-overload]
     link = LinkSettings(flow_control=flow, rx_buffer_bytes=int(knobs["rx_buffer_bytes"]),  # type: ignore[call-overload]
-                        ok_timeout=5.0, nudges=3)
+                        partial_lines=partial, ok_timeout=5.0, nudges=3)
     bench = run(commands, link, SimSettings(**knobs))  # type: ignore[arg-type]
     assert_exactly_once(bench, commands)
 
 
-@pytest.mark.parametrize(("flow", "advanced_ok", "seed"), [
-    ("window", False, 11), ("window", True, 12), ("pingpong", False, 13),
+@pytest.mark.parametrize(("flow", "advanced_ok", "rx", "seed"), [
+    ("window", False, 127, 11), ("window", True, 127, 12), ("pingpong", False, 127, 13),
+    ("window", False, 63, 14),
 ])
 def test_ten_thousand_lines_with_one_percent_corruption_lost_oks_and_busy(
-        flow: str, advanced_ok: bool, seed: int) -> None:
+        flow: str, advanced_ok: bool, rx: int, seed: int) -> None:
     commands = sliced_like(10_000, seed)
     sim = SimSettings(bit_flip_prob=0.01, lost_ok_prob=0.003, busy_prob=0.005,
-                      advanced_ok=advanced_ok, seed=seed)
-    bench = run(commands, LinkSettings(flow_control=flow, ok_timeout=5.0, nudges=3), sim)
+                      advanced_ok=advanced_ok, rx_buffer_bytes=rx, seed=seed)
+    link = LinkSettings(flow_control=flow, rx_buffer_bytes=rx, ok_timeout=5.0, nudges=3)
+    bench = run(commands, link, sim)
     assert_exactly_once(bench, commands)
     assert bench.firmware.faults.flipped > 50  # the faults really happened
     assert bench.protocol.counters.checksum_errors > 0
     assert bench.protocol.counters.lines_resent >= bench.firmware.faults.flipped
+    assert (bench.protocol.counters.lines_split > 0) == (flow == "window")
 
 
 def test_a_host_that_ignores_the_window_is_caught_by_the_emulator() -> None:

@@ -20,6 +20,11 @@ def writes(actions: list[Action]) -> list[str]:
     return [a.data.decode().strip() for a in actions if isinstance(a, Write)]
 
 
+def wire(actions: list[Action]) -> str:
+    """The bytes written, joined (a line may go out in parts)."""
+    return b"".join(a.data for a in actions if isinstance(a, Write)).decode()
+
+
 def acks(actions: list[Action]) -> list[int]:
     return [a.line for a in actions if isinstance(a, Acked)]
 
@@ -36,7 +41,7 @@ def ready(**kw: object) -> Protocol:
 
 
 def test_window_keeps_unacknowledged_bytes_within_the_buffer() -> None:
-    p = ready(rx_buffer_bytes=63)
+    p = ready(rx_buffer_bytes=63, partial_lines=False)
     sent: list[str] = []
     for i in range(10):
         sent += writes(p.submit(f"G1 X{i}.000 Y{i}.000", 0.0)[1])
@@ -44,6 +49,19 @@ def test_window_keeps_unacknowledged_bytes_within_the_buffer() -> None:
     assert sent[0].startswith("N1 G1 X0.000")
     more = writes(p.receive("ok", 0.1))
     assert more and more[0].startswith(f"N{len(sent) + 1} ")
+
+
+def test_partial_lines_fill_the_buffer_to_the_byte_and_finish_the_line_first() -> None:
+    p = ready(rx_buffer_bytes=63)
+    cmd = "G1 X{0}.000 Y{0}.000 Z{0}.000 E0.0100"  # 38 bytes framed: one whole line fits
+    sent = "".join(wire(p.submit(cmd.format(i), 0.0)[1]) for i in range(10))
+    assert len(sent) == 63 and p.inflight_bytes == 63
+    first, part = sent.split("\n")
+    assert first.startswith("N1 ") and part.startswith("N2 G1 X1.000")
+    more = wire(p.receive("ok", 0.1))  # line 1 done: its 38 bytes of credit come back
+    assert (part + more).startswith(f"N2 {cmd.format(1)}*") and len(more) == len(first) + 1
+    assert (part + more).split("\n")[1].startswith("N3 ")
+    assert p.inflight_bytes == 63 and p.counters.lines_split == 2
 
 
 def test_pingpong_has_one_line_in_flight() -> None:
@@ -60,12 +78,12 @@ def test_resend_rewinds_and_duplicate_requests_are_ignored() -> None:
     for cmd in ("G1 X1", "G1 X2", "G1 X3"):
         p.submit(cmd, 0.0)
     # Line 1 garbled: line 1 and the lines after it are each rejected with "Resend: 1".
-    resent = []
+    resent: list[str] = []
     for _ in range(3):
         p.receive("Error:checksum mismatch, Last Line: 0", 0.1)
-        resent += writes(p.receive("Resend: 1", 0.1))
-        resent += writes(p.receive("ok", 0.1))
-    assert [r.split()[0] for r in resent] == ["N1", "N2", "N3"]
+        resent += wire(p.receive("Resend: 1", 0.1))
+        resent += wire(p.receive("ok", 0.1))
+    assert [r.split()[0] for r in "".join(resent).splitlines()] == ["N1", "N2", "N3"]
     assert p.counters.duplicate_resends == 2 and p.counters.lines_resent == 3
     actions = p.receive("ok", 0.2) + p.receive("ok", 0.2) + p.receive("ok", 0.2)
     assert acks(actions) == [1, 2, 3]
@@ -134,11 +152,14 @@ def test_halt_fails_the_job(line: str) -> None:
     assert isinstance(error, FirmwareHalted) and p.state == "halted"
 
 
-def test_m112_bypasses_a_full_window() -> None:
-    p = ready(rx_buffer_bytes=40)
-    for i in range(20):
-        p.submit(f"G1 X{i}.0000 Y{i}.0000", 0.0)
+@pytest.mark.parametrize("partial", [True, False])
+def test_m112_bypasses_a_full_window(partial: bool) -> None:
+    p = ready(rx_buffer_bytes=40, partial_lines=partial)
+    sent = "".join(wire(p.submit(f"G1 X{i}.0000 Y{i}.0000", 0.0)[1]) for i in range(20))
     actions = p.emergency_stop(0.0)
-    assert writes(actions) == ["M112"]
+    # a line that went out in part is finished first: M112 follows a newline
+    lines = (sent + wire(actions)).splitlines()
+    assert lines[-1] == "M112"
+    assert [n.split()[0] for n in lines[:-1]] == (["N1", "N2"] if partial else ["N1"])
     assert isinstance(failures(actions)[0], EmergencyStop)
     assert writes(p.receive("ok", 0.1)) == []  # nothing more is sent

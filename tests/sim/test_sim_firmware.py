@@ -104,3 +104,35 @@ def test_bit_flips_are_seeded_and_never_split_lines() -> None:
     outs = [[send(fw, n, f"G1 X{n}") for n in range(1, 30)] for fw in (a, b)]
     assert outs[0] == outs[1]
     assert a.faults.flipped > 0
+
+
+def test_a_line_arriving_in_parts_is_acted_on_only_when_whole() -> None:
+    fw = board(rx_buffer_bytes=63, queue_slots=1)
+    fw.receive(encode(frame(1, "G4 S100")))  # a dwell holds the only queue slot (no settle)
+    line = encode(frame(2, "G1 X12.500 Y3.250 E0.0400"))
+    for part in (line[:7], line[7:20], line[20:]):
+        fw.receive(part)  # the bytes wait in the ring
+    assert bytes(fw.rx) == line and fw.dropped_bytes == 0
+    fw.settle()
+    assert fw.log[-2:] == [(1, "G4 S100"), (2, "G1 X12.500 Y3.250 E0.0400")]
+    assert [r for r in fw.take_output().decode().splitlines() if r.startswith("ok")] == [
+        "ok", "ok"]
+
+
+def test_parts_read_as_they_come_make_one_line() -> None:
+    fw = board()
+    line = encode(frame(1, "G1 X12.500 Y3.250 E0.0400"))
+    fw.receive(line[:10])
+    assert fw.log[-1] == (0, "M110 N0") and not fw.rx  # read into the line buffer
+    fw.receive(line[10:])
+    fw.settle()
+    assert fw.log[-1] == (1, "G1 X12.500 Y3.250 E0.0400")
+
+
+def test_m112_after_the_rest_of_a_line_in_parts_halts() -> None:
+    fw = board(rx_buffer_bytes=32, queue_slots=1)
+    fw.receive(encode(frame(1, "G4 S100")))
+    line = encode(frame(2, "G1 X12.500 Y3.250 E0.0400"))
+    fw.receive(line[:32])  # fills the ring to the byte
+    fw.receive(line[32:] + b"M112\n")  # overflows the ring; the emergency parser sees it
+    assert fw.halted and fw.log[-1] == (None, "M112")
