@@ -21,8 +21,11 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
+import shutil
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 from hostd.link import LinkSettings, SerialLink, frame
 
@@ -60,9 +63,11 @@ async def run_case(baud: int, buffer: int, mode: str, lines: list[str],
     """
     flow = mode.split("+")[0]
     aok = ["--advanced-ok"] if mode.endswith("+aok") else []
+    log = Path(tempfile.mkdtemp(prefix="hostd-stream-")) / "executed.log"
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "hostd.sim.main", "--pty", "--throttle", "--baud", str(baud),
-        "--rx-buffer-bytes", str(buffer), *aok, stdout=asyncio.subprocess.PIPE)
+        "--rx-buffer-bytes", str(buffer), "--log", str(log), *aok,
+        stdout=asyncio.subprocess.PIPE)
     try:
         assert proc.stdout is not None
         path = (await proc.stdout.readline()).decode().strip()
@@ -81,10 +86,23 @@ async def run_case(baud: int, buffer: int, mode: str, lines: list[str],
     finally:
         proc.terminate()
         await proc.wait()
+    check_executed(log, ["M115", *lines])  # the link asks M115 when it connects
     wire = sum(len(frame(i + sent0 + 1, c)) + 1 for i, c in enumerate(lines))
     return {"lines_s": count / wall, "bytes_s": wire / wall, "share": wire / wall / (baud / 10),
             "resent": status["lines_resent"], "split": status["lines_split"],
             "cpu_per_1000": cpu / count * 1000, "acked": count}
+
+
+def check_executed(log: Path, lines: list[str]) -> None:
+    """Exit with a message unless the board executed ``lines`` exactly once, in order (its
+    M105 nudges aside)."""
+    done = [c for c in log.read_text().splitlines() if c != "M105"]
+    shutil.rmtree(log.parent)
+    if done != [c for c in lines if c != "M105"]:
+        first = next((i for i, (a, b) in enumerate(zip(done, lines, strict=False)) if a != b),
+                     min(len(done), len(lines)))
+        sys.exit(f"stream: the board executed {len(done)} of {len(lines)} lines, first "
+                 f"difference at line {first + 1}: something was lost or repeated")
 
 
 def sliced_job(n: int) -> list[str]:

@@ -1,7 +1,9 @@
 """``hostd-sim``: serve the emulated board on a pseudo-terminal.
 
 ``hostd-sim --pty`` prints the pty path on one line of stdout and serves until killed; point
-``serial.port`` (or any host) at that path.
+``serial.port`` (or any host) at that path. With ``--log FILE`` it writes, when it stops, the
+numbered commands it executed (one per line, in order, the ``M110`` handshakes left out) so a
+caller can check that a stream arrived whole.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import signal
 import sys
 import tty
 from dataclasses import fields
+from pathlib import Path
 
 from hostd.sim.server import Emulator
 from hostd.sim.settings import SimSettings
@@ -29,6 +32,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="hostd-sim", description=__doc__)
     parser.add_argument("--pty", action="store_true", required=True,
                         help="serve on a new pseudo-terminal and print its path")
+    parser.add_argument("--log", type=Path, default=None, metavar="FILE",
+                        help="on exit, write the numbered commands executed to FILE")
     defaults = SimSettings()
     for f in fields(SimSettings):
         value = getattr(defaults, f.name)
@@ -45,8 +50,9 @@ def settings_from_args(args: argparse.Namespace) -> SimSettings:
     return SimSettings(**{f.name: getattr(args, f.name) for f in fields(SimSettings)})
 
 
-async def serve_pty(settings: SimSettings) -> None:
-    """Open a pty, print its path, and serve the emulator on it until cancelled."""
+async def serve_pty(settings: SimSettings, log: Path | None = None) -> None:
+    """Open a pty, print its path, and serve the emulator on it until cancelled or signalled
+    (then write the execution log to ``log``, when given)."""
     master, slave = os.openpty()
     tty.setraw(slave)
     os.set_blocking(master, False)
@@ -64,6 +70,14 @@ async def serve_pty(settings: SimSettings) -> None:
         emulator.close()
         os.close(master)
         os.close(slave)
+        if log is not None:
+            log.write_text("".join(f"{text}\n" for text in executed_lines(emulator)))
+
+
+def executed_lines(emulator: Emulator) -> list[str]:
+    """The numbered commands the board executed, without the ``M110`` handshakes."""
+    return [text for number, text in emulator.firmware.log
+            if number is not None and not text.startswith("M110")]
 
 
 def _on_readable(fd: int, emulator: Emulator) -> None:
@@ -93,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     try:
         with asyncio.Runner(loop_factory=precise_loop) as runner:
-            runner.run(serve_pty(settings_from_args(args)))
+            runner.run(serve_pty(settings_from_args(args), args.log))
     except OSError as exc:
         print(f"hostd-sim: {SimError(exc)}", file=sys.stderr)
         return 1

@@ -163,3 +163,33 @@ def test_m112_bypasses_a_full_window(partial: bool) -> None:
     assert [n.split()[0] for n in lines[:-1]] == (["N1", "N2"] if partial else ["N1"])
     assert isinstance(failures(actions)[0], EmergencyStop)
     assert writes(p.receive("ok", 0.1)) == []  # nothing more is sent
+
+
+def test_the_window_halves_on_a_resend_and_regrows_with_clean_oks() -> None:
+    p = ready(rx_buffer_bytes=127, partial_lines=False)
+    for i in range(40):
+        p.submit(f"G1 X{i}", 0.0)
+    assert p.snapshot()["window_bytes"] == 127
+    p.receive("Resend: 1", 0.1)
+    assert p.snapshot()["window_bytes"] == 63
+    sizes, over = [], []
+    for k in range(30):
+        sent = writes(p.receive("ok", 0.2 + k / 100))
+        sizes.append(p.snapshot()["window_bytes"])
+        if sent and p.inflight_bytes > sizes[-1]:  # the rewound lines went out beyond it
+            over.append((k, p.inflight_bytes, sizes[-1]))
+    assert sizes[:2] == [63, 67]  # the rejection's own ok frees nothing; clean ones grow it
+    assert sizes == sorted(sizes) and sizes[-1] == 127
+    assert over == []
+
+
+def test_m155_autoreports_update_temperatures_and_acknowledge_nothing() -> None:
+    p = ready()
+    for i in range(3):
+        p.submit(f"G1 X{i}", 0.0)
+    for k, temp in enumerate((25.0, 80.5, 150.25)):
+        assert acks(p.receive(f" T:{temp} /210.0 B:40.0 /60.0 @:127 B@:0", 0.1 + k)) == []
+    temps = p.snapshot()["temperatures"]
+    assert (temps["T"]["actual"], temps["T"]["target"]) == (150.25, 210.0)
+    assert (temps["B"]["actual"], temps["B"]["target"]) == (40.0, 60.0)
+    assert acks(p.receive("ok", 4.0)) == [1]

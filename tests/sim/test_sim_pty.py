@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -12,9 +13,10 @@ from hostd.link.replies import Position
 
 
 @pytest.mark.asyncio
-async def test_link_streams_through_the_pty_emulator() -> None:
+async def test_link_streams_through_the_pty_emulator(tmp_path: Path) -> None:
+    log = tmp_path / "executed.log"
     proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "hostd.sim.main", "--pty", "--lost-step-axis", "C",
+        sys.executable, "-m", "hostd.sim.main", "--pty", "--log", str(log), "--lost-step-axis", "C",
         "--lost-step-degrees", "0.5", "--lost-step-at-move", "1",
         stdout=asyncio.subprocess.PIPE)
     try:
@@ -33,5 +35,7 @@ async def test_link_streams_through_the_pty_emulator() -> None:
         proc.terminate()
         await proc.wait()
     assert acked == list(range(300))
+    # written when the emulator stops: the stream once, in order, between the link's queries
+    assert log.read_text().splitlines() == ["M115", *lines, "M114"]
     assert isinstance(pos, Position) and pos.axes["C"] == pytest.approx(299.5)
     assert status["firmware_name"].startswith("Marlin")
