@@ -8,6 +8,7 @@ picklable result. A file whose replay finds a head collision is refused
 from __future__ import annotations
 
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -19,7 +20,8 @@ from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import parse_words
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
-from slicer.replay import replay_check
+from slicer.replay import model_index, replay_check
+from slicer.replay_geometry import ModelIndex
 from slicer.settings import ProcessSettings
 
 
@@ -139,20 +141,33 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
     timings: dict[str, float] = {}
     mesh, placement = _load(mesh_or_path, settings.nozzle_diameter, build_volume)
     timings["load"] = time.perf_counter() - t0
+    with ThreadPoolExecutor(1, "replay-index") as early:
+        # the replay's model index needs only the placed mesh: built on the second core
+        # while the decomposition and the layers (mostly one thread) are computed
+        index = early.submit(model_index, mesh, settings.line_width) if check else None
+        t1 = time.perf_counter()
+        plan = plan_model(mesh, placement, settings, geometry, head, decompose_settings,
+                          planar, build_volume)
+        timings["plan"] = time.perf_counter() - t1
+        return _finish(mesh, plan, settings, MachineSetup(geometry, head, platform_radius),
+                       index, timings, t0, keep_plan)
+
+
+def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
+            setup: MachineSetup, index: Future[ModelIndex] | None, timings: dict[str, float],
+            t0: float, keep_plan: bool) -> SliceResult:
+    """G-code for ``plan`` and, when ``index`` is given, its replay check."""
     t1 = time.perf_counter()
-    plan = plan_model(mesh, placement, settings, geometry, head, decompose_settings, planar,
-                      build_volume)
-    timings["plan"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    res = generate(plan, settings, MachineSetup(geometry, head, platform_radius))
+    res = generate(plan, settings, setup)
     timings["gcode"] = time.perf_counter() - t1
     report: dict[str, object] = {}
-    if check:
+    if index is not None:
         t1 = time.perf_counter()
         parsed = parse_words(res.words())
         timings["read"] = time.perf_counter() - t1
         t1 = time.perf_counter()
-        rep = replay_check(parsed, mesh, head, platform_radius, placed=True)
+        rep = replay_check(parsed, mesh, setup.head, setup.platform_radius, placed=True,
+                           index=index.result())
         timings["replay"] = time.perf_counter() - t1
         report = rep.to_dict()
         if not rep.ok:

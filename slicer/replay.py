@@ -138,15 +138,28 @@ def part_frame_path(parsed: ParsedGcode) -> np.ndarray:
     return (p - place[:3, 3]) @ np.linalg.inv(place[:3, :3]).T
 
 
+def model_index(mesh: trimesh.Trimesh, line_width: float,
+                placement: np.ndarray | None = None) -> ModelIndex:
+    """The model's distance and inside index for a replay at ``line_width``: ``mesh`` moved by
+    ``placement`` (already in the platform frame when ``None``).
+
+    It needs nothing of the G-code, so a caller that slices the part may build it while the
+    part is planned and hand it to :func:`replay_check`.
+    """
+    return ModelIndex(*_placed_mesh(mesh, np.eye(4) if placement is None else placement),
+                      inside_pitch=_inside_pitch(line_width))
+
+
 def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | None = None,
-                 platform_radius: float | None = None, placed: bool = False, threads: int = 2
-                 ) -> ReplayReport:
+                 platform_radius: float | None = None, placed: bool = False, threads: int = 2,
+                 index: ModelIndex | None = None) -> ReplayReport:
     """Replay ``parsed`` against ``mesh`` and report the figures.
 
     ``mesh`` is in STL coordinates (moved by the file's placement), or already in the
     platform frame with ``placed``. ``head`` and ``platform_radius`` default to the file's
     ``;HOSTD_KINEMATICS`` values. With ``threads`` ≥ 2 the stages run on that many threads
-    as their inputs allow (:mod:`.replay_stages`); the figures are the same.
+    as their inputs allow (:mod:`.replay_stages`); the figures are the same. ``index`` is
+    :func:`model_index` of the placed ``mesh`` at the file's line width, when already built.
     """
     t0 = time.perf_counter()
     geo = geometry_from_header(parsed)
@@ -158,8 +171,8 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     bead_area = math.pi * proc["filament_diameter"] ** 2 / 4.0 / w
     placement = np.eye(4) if placed else _placement(parsed)
     with Stages(threads) as st:  # in an order where every input is submitted first
-        model_f = st.submit("index", lambda: ModelIndex(
-            *_placed_mesh(mesh, placement), inside_pitch=_inside_pitch(w)))
+        model_f = st.submit("index", lambda: index if _fits(index, w) else model_index(
+            mesh, w, placement))
         lengths = move_lengths(parsed)
         dep_f = st.submit("sample", lambda: _deposits(parsed, geo, lengths, bead_area, w, t))
         tree_f = st.submit("tree", lambda: point_tree(dep_f.result()[1].p), dep_f)
@@ -193,6 +206,11 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         unsupported_wall_layers=bad_layers, collisions=n_hit,
         collision_messages=[r.message() for r in reports],
         seconds=time.perf_counter() - t0, timings=st.wall, cpu_timings=st.cpu)
+
+
+def _fits(index: ModelIndex | None, line_width: float) -> bool:
+    """Whether a prebuilt ``index`` serves a replay at ``line_width``."""
+    return index is not None and math.isclose(index.inside_pitch, _inside_pitch(line_width))
 
 
 def _inside_pitch(line_width: float) -> float:

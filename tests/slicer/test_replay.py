@@ -11,7 +11,7 @@ from slicer import replay_collide
 from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import parse_lines
 from slicer.plan import PrintPlan, SubpartPlan
-from slicer.replay import replay_check
+from slicer.replay import model_index, replay_check
 from slicer.replay_geometry import ModelIndex
 from slicer.samples import to_manifold, to_trimesh
 from slicer.settings import ProcessSettings
@@ -130,6 +130,22 @@ def test_one_thread_and_two_give_the_same_figures():
             rep.pop(timing)
     assert one["wall_supported"] < 1.0  # the figures under comparison are not trivial
     assert one == two
+
+
+def test_a_prebuilt_model_index_gives_the_same_figures_and_a_wrong_one_is_not_used():
+    plan = box_plan(GEO, n_layers=20, shift=(2.0, 0.0), shift_from=10)
+    mesh = _union(prism_mesh(np.zeros(3), UP, 5.0, 10 * H),
+                  prism_mesh(np.array([2.0, 0.0, 10 * H]), UP, 5.0, 10 * H))
+    parsed = parse_lines(generate(plan, ProcessSettings(), MachineSetup(GEO)).lines)
+    w = ProcessSettings().line_width
+    other = _union(prism_mesh(np.zeros(3), UP, 9.0, 40 * H))  # not this model at all
+    reps = [replay_check(parsed, mesh, index=index).to_dict()
+            for index in (None, model_index(mesh, w), model_index(other, 2 * w))]
+    for rep in reps:
+        for timing in ("seconds", "timings", "cpu_timings"):
+            rep.pop(timing)
+    assert reps[0]["coverage"] > 0.9  # the figures under comparison are not trivial
+    assert reps[0] == reps[1] == reps[2]  # built for another line width: rebuilt here
 
 
 def test_inside_test_with_coarse_lines_casts_rays_near_the_surface():
