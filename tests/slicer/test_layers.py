@@ -14,7 +14,7 @@ from slicer.layers import (
     march_layers,
     turn_toward,
 )
-from slicer.planes2d import from_plane, map_between, plane_frame, section, to_plane
+from slicer.planes2d import TOL, from_plane, map_between, plane_frame, section, to_plane
 from slicer.samples import to_trimesh
 from slicer.skeleton import fit_curve, line_curve
 
@@ -48,7 +48,13 @@ def test_frames_round_trip_and_map() -> None:
 def test_section_of_cylinder_is_its_disc() -> None:
     solid = m3.Manifold.cylinder(10.0, 4.0, 4.0, 64)
     region = section(solid, np.array([0.0, 0.0, 5.0]), plane_frame([0, 0, 1]))
-    assert region.area == pytest.approx(solid.volume() / 10.0, rel=1e-9)
+    disc = shapely.Polygon(4.0 * np.c_[np.cos(np.arange(64) * np.pi / 32),
+                                       np.sin(np.arange(64) * np.pi / 32)])
+    assert disc.area == pytest.approx(solid.volume() / 10.0, rel=1e-9)
+    # simplified by at most the tolerance: never outside the disc, nowhere farther inside
+    assert region.difference(disc).area < 1e-9
+    assert disc.hausdorff_distance(region) <= TOL.simplify + 1e-9
+    assert disc.area - region.area <= disc.length * TOL.simplify
     assert section(solid, np.array([0.0, 0.0, 11.0]), plane_frame([0, 0, 1])).is_empty
 
 
