@@ -32,10 +32,8 @@ class Tolerances:
     min_area: float = 1e-4  # polygons smaller than this (mm²) are dropped
     min_path: float = 1e-3  # paths shorter than this are dropped
     contain: float = 1e-6  # containment slack of generated paths
-    # section outline simplification, mm (≪ line width; Cura's default maximum deviation):
-    # a finely tessellated part keeps a vertex every few hundredths of a mm otherwise
-    simplify: float = 0.025
-    mesh_simplify: float = 0.0125  # solid simplification before slicing, mm (< simplify)
+    simplify: float = 0.01  # section outline simplification, mm (≪ line width)
+    mesh_simplify: float = 0.005  # solid simplification before slicing, mm (< simplify)
     same: float = 1e-6  # vertex tolerance of "the same polygon" in consecutive layers, mm
     straight_rel: float = 0.03  # skeleton deviation / length below which a part is straight
     straight_abs: float = 0.5  # ... or below this absolute deviation
