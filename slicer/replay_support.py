@@ -1,13 +1,18 @@
 """Support of deposited points: earlier material (or the platform) beneath along the nozzle.
 
-Rule (issue 8): a point p with nozzle axis u is *supported* when a point q of a bead
-centreline deposited in an earlier layer lies at depth ``d = (p - q)·u`` with
-``0 < d ≤ 1.5 · max(t, h)`` (t the nominal layer height, h the point's own bead height: wedge
-layers may be up to 1.5 t thick) and at a lateral offset ``≤ d · tan 45° + 0.1 w`` (w the
-line width), or when the platform (z = 0, within its radius) lies within that depth along the
-axis. Samples stand for their piece of centreline (``Samples.step``), so the spacing of the
-samples along a path adds no offset. The same rule is applied to every point; wall points
-(within 0.75 w of the model surface) are also reported on their own.
+Rule (issue 8): a point p with nozzle axis u is *supported* when the material of a bead
+deposited in an earlier layer lies beneath it: a point q of that bead's centreline with
+``(p - q)·u > 0``, whose material reaches to depth ``d`` below p with
+``d ≤ 1.5 · max(t, h)`` (t the nominal layer height, h the point's own bead height: wedge
+layers may be up to 1.5 t thick), at a lateral offset of the centreline ``≤ d · tan 45° +
+0.1 w`` (w the line width). The material's depth is the centreline's, less how far the bead
+reaches towards p across its path (half a width times the share of u across the bead): 0
+when both layers share an axis (the tip is the top of the bead), half a width where a branch's
+first layer stands on the flank of its parent's beads, a base plane across the parent's
+layers. A point is also supported when the platform (z = 0, within its radius) lies within
+that depth along the axis. Samples stand for their piece of centreline (``Samples.step``), so
+the spacing of the samples along a path adds no offset. The same rule is applied to every
+point; wall points (within 0.75 w of the model surface) are also reported on their own.
 
 A point that fails the rule but lies inside the model away from its surface, with material of
 the previous layer within half the sparse infill spacing (w / density) plus one line width
@@ -39,14 +44,15 @@ def depth_limit(s: Samples, layer_height: float) -> np.ndarray:
 
 
 def _check(s: Samples, top: np.ndarray, below: np.ndarray, dmax: np.ndarray,
-           slack: float) -> np.ndarray:
+           slack: float, half_width: float) -> np.ndarray:
     """Which (top, below) pairs put ``below``'s bead in the support cone of ``top``.
 
-    The material of ``below`` is its piece of bead centreline ``q + τ · step`` (|τ| ≤ 1/2);
-    the point of it tested is the one laterally nearest to ``top``'s nozzle axis. All in
-    dot products of ``rel = p − q``, ``step`` and the unit axis ``u``: across the axis,
-    ``rel`` and ``step`` have the dot product ``rel·step − (rel·u)(step·u)`` and ``step``
-    the squared length ``step·step − (step·u)²``.
+    The bead of ``below`` is its piece of centreline ``q + τ · step`` (|τ| ≤ 1/2); the point
+    of it tested is the one laterally nearest to ``top``'s nozzle axis. All in dot products
+    of ``rel = p − q``, ``step`` and the unit axis ``u``: across the axis, ``rel`` and
+    ``step`` have the dot product ``rel·step − (rel·u)(step·u)`` and ``step`` the squared
+    length ``step·step − (step·u)²``. The depth is that of the bead's material nearest
+    ``top`` along ``u`` (:func:`_material_depth`); the lateral offset is the centreline's.
     """
     u = s.u[top]
     rel = s.p[top] - s.p[below]
@@ -57,8 +63,27 @@ def _check(s: Samples, top: np.ndarray, below: np.ndarray, dmax: np.ndarray,
     tau = np.clip((rel_step - along * step_along) / np.where(den > 0, den, 1.0), -0.5, 0.5)
     d = along - tau * step_along
     lat2 = _dot(rel, rel) - 2.0 * tau * rel_step + tau * tau * step_step - d * d
-    reach = d * math.tan(math.radians(OVERHANG_DEG)) + slack
-    return (s.seq[below] < s.seq[top]) & (d > 0) & (d <= dmax[top]) & (lat2 <= reach * reach)
+    depth = d - _side_reach(u, s.u[below], step, half_width)
+    reach = depth * math.tan(math.radians(OVERHANG_DEG)) + slack
+    return ((s.seq[below] < s.seq[top]) & (d > 0) & (depth <= dmax[top])
+            & (lat2 <= reach * reach))
+
+
+def _side_reach(u: np.ndarray, u_below: np.ndarray, step: np.ndarray,
+                half_width: float) -> np.ndarray:
+    """How far the earlier bead's material reaches from its centreline towards a point above
+    it along ``u`` (n, 3): half a width times the share of ``u`` across the bead, (n,).
+
+    A bead is ``w`` wide across its path within its own layer (along ``u_below × step``) and
+    its top is its nozzle tip. Where the new layer's axis is the old one's, the material
+    nearest along ``u`` is the tip (reach 0); where a branch's first layer lies on the side
+    of its parent's beads (a base plane across the parent's layers), it is the bead's flank,
+    half a width nearer than the centreline. A sample without a direction reaches nothing.
+    """
+    across = np.cross(u_below, step)
+    norm = np.linalg.norm(across, axis=1)
+    share = np.abs(_dot(across, u)) / np.where(norm > 1e-12, norm, np.inf)
+    return half_width * share
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -99,7 +124,8 @@ def strict_support(s: Samples, layer_height: float, line_width: float,
         valid = idx < len(s)
         below = np.where(valid, idx, 0)
         top = np.repeat(todo[:, None], k, axis=1)
-        hit = valid & _check(s, top.ravel(), below.ravel(), dmax, slack).reshape(valid.shape)
+        hit = valid & _check(s, top.ravel(), below.ravel(), dmax, slack,
+                             0.5 * line_width).reshape(valid.shape)
         ok[todo] = hit.any(axis=1)
         todo = todo[~ok[todo]]
     return ok

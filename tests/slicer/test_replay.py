@@ -70,6 +70,24 @@ def test_overhang_step_is_flagged_unsupported():
     assert rep.supported < 0.99
 
 
+@pytest.mark.parametrize(("gap", "supported"), [(0.0, True), (0.15, False)])
+def test_a_first_layer_on_the_flank_of_the_parents_beads(gap, supported):
+    # A branch standing sideways (axis +x) on the vertical face x = 5 of an upright block:
+    # its first layer lies on the flanks of the block's outer beads, whose centrelines run
+    # half a width inside the face. Their material reaches the face, so the first layer is
+    # supported, unless it starts a gap away from it.
+    root = prism_layers(0, np.zeros(3), UP, 5.0, 60, GEO)
+    side = np.array([1.0, 0.0, 0.0])
+    base = np.array([5.0 + gap, 0.0, 6.0])
+    child = prism_layers(1, base, side, 2.0, 10, GEO)
+    plan = PrintPlan(np.eye(4), [SubpartPlan(0, None, None, None, UP, root),
+                                 SubpartPlan(1, 0, base, side, side, child)])
+    mesh = _union(prism_mesh(np.zeros(3), UP, 5.0, 60 * H), prism_mesh(base, side, 2.0, 10 * H))
+    bad = _replay(plan, mesh).unsupported_wall_layers
+    assert ("sub-part 1 layer 0" not in bad) == supported
+    assert "sub-part 1 layer 1" not in bad  # stacked on the first
+
+
 def test_tilted_child_over_a_clear_base_has_no_collision():
     plan, d = two_part_plan(GEO, tilt_deg=30.0, lift=1.5)
     mesh = _union(prism_mesh(np.zeros(3), UP, 5.0, 20 * H),
