@@ -1,18 +1,17 @@
 """Support of deposited points: earlier material (or the platform) beneath along the nozzle.
 
 Rule (issue 8): a point p with nozzle axis u is *supported* when the material of a bead
-deposited in an earlier layer lies beneath it: a point q of that bead's centreline with
-``(p - q)·u > 0``, whose material reaches to depth ``d`` below p with
-``d ≤ 1.5 · max(t, h)`` (t the nominal layer height, h the point's own bead height: wedge
-layers may be up to 1.5 t thick), at a lateral offset of the centreline ``≤ d · tan 45° +
-0.1 w`` (w the line width). The material's depth is the centreline's, less how far the bead
-reaches towards p across its path (half a width times the share of u across the bead): 0
-when both layers share an axis (the tip is the top of the bead), half a width where a branch's
-first layer stands on the flank of its parent's beads, a base plane across the parent's
-layers. A point is also supported when the platform (z = 0, within its radius) lies within
-that depth along the axis. Samples stand for their piece of centreline (``Samples.step``), so
-the spacing of the samples along a path adds no offset. The same rule is applied to every
-point; wall points (within 0.75 w of the model surface) are also reported on their own.
+deposited in an earlier layer lies beneath it, at a depth ``0 < d ≤ 1.5 · max(t, h)`` along u
+(t the nominal layer height, h the point's own bead height: wedge layers may be up to 1.5 t
+thick), with the bead's centreline at a lateral offset ``≤ d · tan 45° + 0.1 w`` (w the line
+width). The material's depth is the centreline's, less how far the bead reaches towards p
+across its path (half a width times the share of u across the bead): 0 when both layers share
+an axis (the tip is the top of the bead), half a width where a branch's first layer stands on
+the flank of its parent's beads, a base plane across the parent's layers. A point is also
+supported when the platform (z = 0, within its radius) lies within that depth along the axis.
+Samples stand for their piece of centreline (``Samples.step``), so the spacing of the samples
+along a path adds no offset. The same rule is applied to every point; wall points (within
+0.75 w of the model surface) are also reported on their own.
 
 A point that fails the rule but lies inside the model away from its surface, with material of
 the previous layer within half the sparse infill spacing (w / density) plus one line width
@@ -52,7 +51,8 @@ def _check(s: Samples, top: np.ndarray, below: np.ndarray, dmax: np.ndarray,
     of ``rel = p − q``, ``step`` and the unit axis ``u``: across the axis, ``rel`` and
     ``step`` have the dot product ``rel·step − (rel·u)(step·u)`` and ``step`` the squared
     length ``step·step − (step·u)²``. The depth is that of the bead's material nearest
-    ``top`` along ``u`` (:func:`_material_depth`); the lateral offset is the centreline's.
+    ``top`` along ``u`` (:func:`_side_reach`), and it must be positive: material level with
+    ``top`` or above it is beside it, not beneath. The lateral offset is the centreline's.
     """
     u = s.u[top]
     rel = s.p[top] - s.p[below]
@@ -65,7 +65,7 @@ def _check(s: Samples, top: np.ndarray, below: np.ndarray, dmax: np.ndarray,
     lat2 = _dot(rel, rel) - 2.0 * tau * rel_step + tau * tau * step_step - d * d
     depth = d - _side_reach(u, s.u[below], step, half_width)
     reach = depth * math.tan(math.radians(OVERHANG_DEG)) + slack
-    return ((s.seq[below] < s.seq[top]) & (d > 0) & (depth <= dmax[top])
+    return ((s.seq[below] < s.seq[top]) & (depth > 0) & (depth <= dmax[top])
             & (lat2 <= reach * reach))
 
 
