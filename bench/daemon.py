@@ -12,6 +12,10 @@ under cProfile and writes its stats.
 It measures RSS when idle, then streams a G-code job and measures the CPU shares and
 ``printer.status`` round trips of a client polling at ~20 Hz meanwhile.
 Targets: RSS < 80 MB idle, daemon streaming CPU < 10 % of a core, status p99 < 10 ms.
+
+Last, ``floor_us_per_wakeup`` is :mod:`wakeup`'s bare asyncio wake-up and write per ``ok``
+(no hostd code) on this machine right after: a shared VM's speed drifts, and this tells a
+slow spell from a slower daemon.
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ import tempfile
 import time
 from collections import deque
 from pathlib import Path
+
+import wakeup
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -206,6 +212,7 @@ def main() -> int:
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="hostd-bench-") as name:
         res = asyncio.run(bench(Path(name), args.in_process, args.profile, args.partial_lines))
+    res["floor_us_per_wakeup"] = 1e6 * wakeup.measure(3000, 0.00168, write=True)[0]
     mode = "in-process sim:// (CPU includes the emulator)" if args.in_process else \
         "emulator in its own process on a pty"
     print(f"hostd daemon bench, {BAUD} baud, {mode}, "

@@ -56,21 +56,30 @@ async def host(fd: int, count: int, write: bool) -> tuple[float, float]:
     return time.process_time() - cpu, time.perf_counter() - wall
 
 
+def measure(count: int, period: float, write: bool) -> tuple[float, float]:
+    """``count`` wake-ups against a child board: (CPU s per wake-up, wall s)."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    pid = os.fork()
+    if pid == 0:
+        board(master, count, period)
+        os._exit(0)
+    try:
+        cpu, wall = asyncio.run(host(slave, count, write))
+    finally:
+        os.waitpid(pid, 0)
+        os.close(master)
+        os.close(slave)
+    return cpu / count, wall
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--count", type=int, default=5000)
     ap.add_argument("--period", type=float, default=0.00168)
     ap.add_argument("--write", action="store_true", help="answer each wake-up with a line")
     args = ap.parse_args()
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    pid = os.fork()
-    if pid == 0:
-        board(master, args.count, args.period)
-        os._exit(0)
-    cpu, wall = asyncio.run(host(slave, args.count, args.write))
-    os.waitpid(pid, 0)
-    per = cpu / args.count
+    per, wall = measure(args.count, args.period, args.write)
     print(f"{args.count} wake-ups{' with a write each' if args.write else ''}: "
           f"{per * 1e6:.1f} us CPU each, {100 * per / args.period:.1f} % of a core at one per "
           f"{args.period * 1e3:.2f} ms ({wall:.1f} s)")
