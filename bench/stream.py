@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
-import shutil
 import sys
 import tempfile
 import time
@@ -63,7 +62,8 @@ async def run_case(baud: int, buffer: int, mode: str, lines: list[str],
     """
     flow = mode.split("+")[0]
     aok = ["--advanced-ok"] if mode.endswith("+aok") else []
-    log = Path(tempfile.mkdtemp(prefix="hostd-stream-")) / "executed.log"
+    tmp = tempfile.TemporaryDirectory(prefix="hostd-stream-")
+    log = Path(tmp.name) / "executed.log"
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "hostd.sim.main", "--pty", "--throttle", "--baud", str(baud),
         "--rx-buffer-bytes", str(buffer), "--log", str(log), *aok,
@@ -86,7 +86,8 @@ async def run_case(baud: int, buffer: int, mode: str, lines: list[str],
     finally:
         proc.terminate()
         await proc.wait()
-    check_executed(log, ["M115", *lines])  # the link asks M115 when it connects
+    with tmp:
+        check_executed(log, ["M115", *lines])  # the link asks M115 when it connects
     wire = sum(len(frame(i + sent0 + 1, c)) + 1 for i, c in enumerate(lines))
     return {"lines_s": count / wall, "bytes_s": wire / wall, "share": wire / wall / (baud / 10),
             "resent": status["lines_resent"], "split": status["lines_split"],
@@ -97,11 +98,11 @@ def check_executed(log: Path, lines: list[str]) -> None:
     """Exit with a message unless the board executed ``lines`` exactly once, in order (its
     M105 nudges aside)."""
     done = [c for c in log.read_text().splitlines() if c != "M105"]
-    shutil.rmtree(log.parent)
-    if done != [c for c in lines if c != "M105"]:
-        first = next((i for i, (a, b) in enumerate(zip(done, lines, strict=False)) if a != b),
-                     min(len(done), len(lines)))
-        sys.exit(f"stream: the board executed {len(done)} of {len(lines)} lines, first "
+    sent = [c for c in lines if c != "M105"]
+    if done != sent:
+        first = next((i for i, (a, b) in enumerate(zip(done, sent, strict=False)) if a != b),
+                     min(len(done), len(sent)))
+        sys.exit(f"stream: the board executed {len(done)} of {len(sent)} lines, first "
                  f"difference at line {first + 1}: something was lost or repeated")
 
 
