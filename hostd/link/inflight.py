@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
 
 
@@ -36,7 +37,8 @@ class InFlight:
     """
 
     def __init__(self) -> None:
-        self._entries: list[Sent] = []
+        self._entries: deque[Sent] = deque()
+        self._ascending = True  # line numbers ascend along _entries (no rewind among them)
         self.bytes = 0
         self.lines = 0
 
@@ -45,7 +47,10 @@ class InFlight:
 
     def add(self, sent: Sent) -> None:
         """Record a transmission."""
-        self._entries.append(sent)
+        entries = self._entries
+        if entries and entries[-1].number >= sent.number:
+            self._ascending = False
+        entries.append(sent)
         self.bytes += sent.written
         self.lines += 1
 
@@ -61,9 +66,10 @@ class InFlight:
         Everything up to that transmission is known to have left the firmware's receive
         buffer; without such a transmission nothing is left out.
         """
-        for i, sent in enumerate(self._entries):
+        entries = iter(self._entries)
+        for sent in entries:
             if sent.number == number:
-                rest = [s for s in self._entries[i + 1:] if s.counted]
+                rest = [s for s in entries if s.counted]  # the ones after it
                 return len(rest), sum(s.written for s in rest)
         return self.lines, self.bytes
 
@@ -82,7 +88,14 @@ class InFlight:
     def drop_through(self, number: int) -> Sent | None:
         """Forget every transmission of lines up to ``number`` (they have been executed);
         returns the latest transmission of ``number`` itself, if any."""
-        keep = []
+        entries = self._entries
+        if self._ascending:  # the lines to forget are at the front
+            latest = None
+            while entries and entries[0].number <= number:
+                latest = entries.popleft()
+                self._release(latest)
+            return latest if latest is not None and latest.number == number else None
+        keep: deque[Sent] = deque()
         latest = None
         for sent in self._entries:
             if sent.number > number:
@@ -95,6 +108,8 @@ class InFlight:
                 self.bytes -= sent.written
                 self.lines -= 1
         self._entries = keep
+        numbers = [s.number for s in keep]
+        self._ascending = numbers == sorted(set(numbers))
         return latest
 
     def uncount(self) -> None:
@@ -107,6 +122,7 @@ class InFlight:
     def clear(self) -> None:
         """Forget everything."""
         self._entries.clear()
+        self._ascending = True
         self.bytes = 0
         self.lines = 0
 

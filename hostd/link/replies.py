@@ -170,7 +170,7 @@ def parse_reply(line: str) -> Reply:
     """
     text = line.strip()
     if text == "ok":  # by far the most frequent line: no fields to look for
-        return _PLAIN_OK
+        return PLAIN_OK
     low = text.lower()
     for parser in _PARSERS:
         event = parser(text, low)
@@ -268,7 +268,7 @@ def _temperatures(text: str, low: str) -> Temperatures | None:
     return parse_temperatures(text) if _TEMP_START.search(text) else None
 
 
-_PLAIN_OK = Ok()
+PLAIN_OK = Ok()  # the reply every plain ``ok`` parses to (shared: it is frozen)
 _PARSERS = (_ok, _resend, _halted, _error, _busy, _wait, _banner, _firmware, _echo,
             _position, _temperatures)
 

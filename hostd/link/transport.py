@@ -75,7 +75,8 @@ class DirectSerialTransport(serial_asyncio.SerialTransport):
 
     The stock transport queues every write until the next loop iteration (a writer callback
     per line); asyncio's own socket and pipe transports try the write first, and so does this.
-    It also reads with a single ``os.read``.
+    It also reads and writes with a single ``os.read`` or ``os.write`` (the port is
+    non-blocking: pyserial's calls add timeout bookkeeping, and its read a ``select``).
     """
 
     def _read_ready(self) -> None:
@@ -98,11 +99,12 @@ class DirectSerialTransport(serial_asyncio.SerialTransport):
             super().write(data)
             return
         try:
-            n = self._serial.write(data)
+            n = os.write(self._serial.fileno(), data)
         except (BlockingIOError, InterruptedError):
             n = 0
-        except serial.SerialException as exc:
-            self._fatal_error(exc, "Fatal write error on serial transport")
+        except OSError as exc:
+            self._fatal_error(serial.SerialException(f"write failed: {exc}"),
+                              "Fatal write error on serial transport")
             return
         if n < len(data):
             super().write(data[n:])
