@@ -59,7 +59,7 @@ class LinkPort:
     def __init__(self, link: SerialLink) -> None:
         self.link = link
 
-    async def send(self, command: str) -> asyncio.Future[int]:
+    def submit(self, command: str) -> asyncio.Future[int]:
         return self.link.submit(command)
 
     async def query(self, command: str) -> tuple[Reply, ...]:

@@ -421,7 +421,8 @@ class Protocol:
             self.rtt.add(now - sent.sent_at)
         first = self._executed + 1
         self._executed = line
-        self.window.grow()
+        if self.window.size < self.window.limit:
+            self.window.grow()
         if first == line:  # one line, as every plain ok: no loops
             item = self._history.get(line)
             if item is not None and item.seq is not None:
@@ -433,7 +434,9 @@ class Protocol:
             self._advance_ack(first, line)
         if self._since_ok:
             self._since_ok = []
-        if line - self.settings.history_size >= self._history_low or self._resend_counts:
+        # the history is trimmed back to history_size lines an eighth of it at a time
+        if (line - self.settings.history_size - self._history_low
+                >= self.settings.history_size >> 3) or self._resend_counts:
             self._forget(line)
 
     def _answer_queries(self, first: int, line: int, ok: Ok) -> None:

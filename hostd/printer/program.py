@@ -65,12 +65,22 @@ class Program:
     def layer_at(self, index: int) -> LayerMark | None:
         """The layer that command ``index`` belongs to (``None`` before the first).
 
-        A binary search over the layer starts (the streamer asks for every acked line).
+        A binary search over the layer starts.
         """
+        k = bisect.bisect_right(self._layer_starts(), index)
+        return self.layers[k - 1] if k else None
+
+    def next_layer_start(self, index: int) -> int:
+        """The first command after ``index`` that starts a layer (``total`` if none): up to
+        it, :meth:`layer_at` stays what it is at ``index``."""
+        starts = self._layer_starts()
+        k = bisect.bisect_right(starts, index)
+        return starts[k] if k < len(starts) else self.total
+
+    def _layer_starts(self) -> list[int]:
         if len(self._starts) != len(self.layers):
             self._starts = [mark.index for mark in self.layers]
-        k = bisect.bisect_right(self._starts, index)
-        return self.layers[k - 1] if k else None
+        return self._starts
 
     def resume_index(self, index: int, scope: str) -> int:
         """Where to restart when ``index`` was interrupted: start of its ``layer`` or

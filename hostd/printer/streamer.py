@@ -14,7 +14,7 @@ import asyncio
 import logging
 import math
 from collections import deque
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -29,8 +29,8 @@ log = logging.getLogger(__name__)
 class Port(Protocol):
     """What the streamer needs from the serial link."""
 
-    async def send(self, command: str) -> Awaitable[None]:
-        """Queue one line (waiting for room); the result completes when it is acknowledged."""
+    def submit(self, command: str) -> asyncio.Future[Any]:
+        """Queue one line (never blocks); the future completes when it is acknowledged."""
         ...
 
     async def query(self, command: str) -> tuple[Reply, ...]:
@@ -90,20 +90,32 @@ class Streamer:
         self.hooks = hooks or Hooks()
         self.start = start
         self.acked = start  # commands 0 .. acked-1 are acknowledged
-        self.modal = modal if modal is not None else program.modal_before(start)
+        self._modal = modal if modal is not None else program.modal_before(start)
+        self._modal_upto = start  # _modal is the state after commands 0 .. _modal_upto-1
         self.prelude = list(prelude or [])
         mark = program.layer_at(start)
         self.subpart: int | None = mark.subpart if mark else None
         self.layer: int | None = mark.layer if mark else None
+        self._next_layer = program.next_layer_start(start)
         self.stats = StreamStats()
         self.paused_modal: ModalState | None = None
         self.pause_reason = ""
-        self._inflight: deque[tuple[int, Awaitable[None]]] = deque()
+        self._inflight: deque[tuple[int, asyncio.Future[Any]]] = deque()
         self._pause_req = asyncio.Event()
         self._resume = asyncio.Event()
         self._cancel = asyncio.Event()
         self._needs_restart = False
         self.state = "idle"
+
+    @property
+    def modal(self) -> ModalState:
+        """The modal state the acknowledged commands leave (brought up to date when read:
+        the status, a pause or a checkpoint asks, not every ``ok``)."""
+        commands, state = self.program.commands, self._modal
+        for index in range(self._modal_upto, self.acked):
+            state.apply(commands[index])
+        self._modal_upto = self.acked
+        return state
 
     # -- control (from the job manager) --------------------------------------------------
 
@@ -153,26 +165,27 @@ class Streamer:
         """Submit command ``index``; when ``lookahead`` lines are out, sleep until a quarter
         of them are acknowledged (one wake-up per batch, not per ``ok``), then take note of
         every acknowledged line."""
-        fut = await self.port.send(self.program.commands[index])
         inflight = self._inflight
-        inflight.append((index, fut))
+        inflight.append((index, self.port.submit(self.program.commands[index])))
         excess = len(inflight) - self.settings.lookahead
         if excess > 0:
             batch = max(1, self.settings.lookahead // 4)
             await _settled(inflight[excess + batch - 2][1])
-        while inflight and _done(inflight[0][1]):
-            await self._ack_head()
+        while inflight and inflight[0][1].done():
+            self._ack_head()
 
-    async def _ack_head(self) -> None:
+    def _ack_head(self) -> None:
+        """Take note of the (done) oldest line; raises the link's error if it failed."""
         index, fut = self._inflight[0]
-        await fut
+        fut.result()
         self._inflight.popleft()
-        self.modal.apply(self.program.commands[index])
         self.acked = index + 1
-        self._track_layer(index)
+        if index >= self._next_layer:
+            self._track_layer(index)
         self.hooks.progress(self)
 
     def _track_layer(self, index: int) -> None:
+        self._next_layer = self.program.next_layer_start(index)
         mark = self.program.layer_at(index)
         if mark is None:
             return
@@ -184,14 +197,14 @@ class Streamer:
 
     async def _drain(self) -> None:
         while self._inflight:
-            await self._ack_head()
+            await _settled(self._inflight[0][1])
+            self._ack_head()
 
     async def _extra(self, command: str) -> None:
         """A command of the host's own (pause, restore, transaction), acknowledged at once."""
         await self._drain()
         self.stats.extra_commands.append(command)
-        fut = await self.port.send(command)
-        await fut
+        await self.port.submit(command)
 
     # -- pause / resume --------------------------------------------------------------------
 
@@ -298,14 +311,10 @@ class Streamer:
                 "pause_reason": self.pause_reason}
 
 
-def _done(fut: Awaitable[None]) -> bool:
-    return isinstance(fut, asyncio.Future) and fut.done()
-
-
-async def _settled(fut: Awaitable[None]) -> None:
+async def _settled(fut: asyncio.Future[Any]) -> None:
     """Wait until ``fut`` is done, whether it succeeded or failed (its owner reads it)."""
-    if not _done(fut):
-        await asyncio.wait((asyncio.ensure_future(fut),))
+    if not fut.done():
+        await asyncio.wait((fut,))
 
 
 def _position(replies: tuple[Reply, ...]) -> dict[str, float]:

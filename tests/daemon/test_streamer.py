@@ -46,7 +46,7 @@ class FakePort:
         self.fw = ModalState()
         self.lost_c_after = lost_c_after
 
-    async def send(self, command: str) -> asyncio.Future[None]:
+    def submit(self, command: str) -> asyncio.Future[None]:
         self.log.append(command)
         self.fw.apply(command)
         if self.lost_c_after is not None and len(self.log) == self.lost_c_after:
@@ -182,15 +182,15 @@ async def test_lost_step_pauses_at_transition_and_resume_rehomes_and_rotates():
         paused.set()
 
     # lose steps while the block rotates (the 2nd block command is the A/C move)
-    orig_send = port.send
+    orig_submit = port.submit
 
-    async def send(command: str):
-        fut = await orig_send(command)
+    def submit(command: str):
+        fut = orig_submit(command)
         if command.startswith("G0 A30"):
             port.fw.position["C"] += 1.5
         return fut
 
-    port.send = send  # type: ignore[method-assign]
+    port.submit = submit  # type: ignore[method-assign]
     st = Streamer(port, prog, StreamSettings(lookahead=4), Hooks(paused=on_paused,
                                                                  event=on_event))
     async with asyncio.timeout(5):

@@ -9,6 +9,7 @@ from hostd.link.errors import (
     EmergencyStop,
     FirmwareHalted,
     FirmwareReset,
+    HistoryExhausted,
     LinkLost,
     ResendLoop,
 )
@@ -193,3 +194,21 @@ def test_m155_autoreports_update_temperatures_and_acknowledge_nothing() -> None:
     assert (temps["T"]["actual"], temps["T"]["target"]) == (150.25, 210.0)
     assert (temps["B"]["actual"], temps["B"]["target"]) == (40.0, 60.0)
     assert acks(p.receive("ok", 4.0)) == [1]
+
+
+def test_resends_reach_back_history_size_lines_and_no_further() -> None:
+    p = ready(flow_control="pingpong", history_size=16)
+    for i in range(1, 41):
+        p.submit(f"G1 X{i}", 0.0)
+        assert acks(p.receive("ok", 0.1)) == [i]
+    # the last 16 lines are kept: the firmware may ask for them again
+    again = writes(p.receive("Resend: 25", 0.2))
+    assert again and again[0].startswith("N25 G1 X25*")
+    assert not failures(p.receive("ok", 0.2))  # the error ok of the rejected line
+    # a line executed more than history_size lines ago is gone: the job cannot go on
+    p = ready(flow_control="pingpong", history_size=16)
+    for i in range(1, 41):
+        p.submit(f"G1 X{i}", 0.0)
+        p.receive("ok", 0.1)
+    (error,) = failures(p.receive("Resend: 5", 0.2))
+    assert isinstance(error, HistoryExhausted) and "line 5" in str(error)
