@@ -51,6 +51,7 @@ class SerialLink:
         self.protocol = Protocol(settings)
         self.connection: Connection | None = None
         self._opener = opener
+        self._loop: asyncio.AbstractEventLoop | None = None  # the loop it was connected on
         self._reconnect_task: asyncio.Task[None] | None = None
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at = 0.0
@@ -87,6 +88,7 @@ class SerialLink:
 
     async def _open_and_handshake(self) -> None:
         self._drop_connection()
+        self._loop = asyncio.get_running_loop()
         conn = self.connection = await self._opener(self.settings, self.emulator_settings)
         conn.receiver.attach(self._on_lines, lambda reason: self._on_lost(conn, reason))
         self._handshake = asyncio.get_running_loop().create_future()
@@ -120,8 +122,9 @@ class SerialLink:
         Never blocks. The future fails with a :class:`LinkError` if the line is lost to a
         reset, halt, resend loop or lost link.
         """
-        fut: asyncio.Future[int] = asyncio.get_running_loop().create_future()
-        seq, actions = self.protocol.submit(command, self._now())
+        seq, actions = self.protocol.submit(command, self._now())  # raises unless connected
+        assert self._loop is not None  # (asyncio.get_running_loop costs a getpid() per call)
+        fut: asyncio.Future[int] = self._loop.create_future()
         self._lines.append((seq, fut))
         if actions:  # mostly none: the line waits for credit
             self._apply(actions)
@@ -212,12 +215,19 @@ class SerialLink:
 
     def _apply(self, actions: list[Action]) -> None:
         """Write every :class:`Write` at once, then handle the events in order."""
-        data = b"".join([a.data for a in actions if type(a) is Write])
+        data = b""
+        events = False
+        for action in actions:
+            if type(action) is Write:
+                data += action.data
+            else:
+                events = True
         if data:
             self._write(data)
-        for action in actions:
-            if type(action) is not Write:
-                self._event(action)
+        if events:
+            for action in actions:
+                if type(action) is not Write:
+                    self._event(action)
         self._arm_timer()
 
     def _write(self, data: bytes) -> None:
@@ -225,7 +235,7 @@ class SerialLink:
             self.connection.write(data)
 
     def _event(self, action: Action) -> None:
-        if isinstance(action, Acked):
+        if type(action) is Acked:
             lines = self._lines
             while lines and lines[0][0] <= action.line:
                 seq, fut = lines.popleft()
