@@ -181,20 +181,22 @@ async def bench(tmp: Path, in_process: bool, profile: str | None,
     port = "sim://"
     if not in_process:
         emu, port = await spawn_emulator()
-    proc, drain = await spawn_daemon(tmp, port, profile, partial)
     try:
-        r, w = await asyncio.open_unix_connection(str(tmp / "hostd.sock"))
-        c = Client(r, w)
-        await c.call("server.info")
-        await asyncio.sleep(SETTLE_S)  # let the daemon settle before the idle figure
-        out = {"idle_rss_mb": rss_mb(proc.pid)}
-        pids = {"stream": proc.pid} | ({"emulator": emu.pid} if emu else {})
-        out |= await stream_and_poll(c, pids)
-        w.close()
-    finally:
-        proc.send_signal(signal.SIGINT if profile else signal.SIGTERM)
-        await proc.wait()
-        await drain
+        proc, drain = await spawn_daemon(tmp, port, profile, partial)
+        try:
+            r, w = await asyncio.open_unix_connection(str(tmp / "hostd.sock"))
+            c = Client(r, w)
+            await c.call("server.info")
+            await asyncio.sleep(SETTLE_S)  # let the daemon settle before the idle figure
+            out = {"idle_rss_mb": rss_mb(proc.pid)}
+            pids = {"stream": proc.pid} | ({"emulator": emu.pid} if emu else {})
+            out |= await stream_and_poll(c, pids)
+            w.close()
+        finally:
+            proc.send_signal(signal.SIGINT if profile else signal.SIGTERM)
+            await proc.wait()
+            await drain
+    finally:  # also when the daemon fails to start: no emulator left behind
         if emu is not None:
             emu.terminate()
             await emu.wait()
