@@ -1,0 +1,128 @@
+"""The daemon's Python work per streamed line, without a port: link shell, protocol, streamer.
+
+Run: ``.venv/bin/python bench/linkpath.py [--lines N] [--by-function]``.
+
+A fake port answers every complete line with one ``ok``, each in a loop iteration of its own
+(as each ``ok`` is a wake-up of its own on a real port); the streamer reads its modal state
+every 30 lines, as a status poll at 20 Hz does at 250000 baud. Printed:
+
+- ``bytecodes_per_line``: Python bytecodes executed per line (a trace count, the same on
+  every run and every machine: it moves only when the code does);
+- ``warm_us_per_line``: wall microseconds per line, the best of three runs. In the daemon
+  the same code runs cold between system calls and costs several times more; this and
+  :mod:`daemon`'s live figure are for comparing versions, not for the target.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from daemon import synthetic_gcode  # noqa: E402
+
+from hostd.config.loader import defaults  # noqa: E402
+from hostd.daemon import LinkPort, stream_settings  # noqa: E402
+from hostd.link.link import SerialLink  # noqa: E402
+from hostd.link.settings import link_settings_from_config  # noqa: E402
+from hostd.link.transport import Connection, LineReceiver  # noqa: E402
+from hostd.printer.program import parse_program  # noqa: E402
+from hostd.printer.streamer import Hooks, Streamer  # noqa: E402
+
+STATUS_EVERY = 30  # lines between two reads of the modal state (20 Hz at ~600 lines/s)
+
+
+class AnsweringTransport:
+    """Takes the link's bytes; every complete line earns one ``ok`` on a later loop turn."""
+
+    def __init__(self, receiver: LineReceiver, loop: asyncio.AbstractEventLoop) -> None:
+        self.receiver, self.loop = receiver, loop
+        self.partial = b""
+        self.closing = False
+
+    def write(self, data: bytes) -> None:
+        *lines, self.partial = (self.partial + data).split(b"\n")
+        for _ in lines:
+            self.loop.call_soon(self.receiver.data_received, b"ok\n")
+
+    def is_closing(self) -> bool:
+        return self.closing
+
+    def close(self) -> None:
+        self.closing = True
+
+
+async def stream(text: str, tracer: Callable[..., Any] | None = None) -> tuple[float, int]:
+    """Stream ``text`` through the real link and streamer: (seconds, lines)."""
+    cfg = defaults()
+    loop = asyncio.get_running_loop()
+
+    async def opener(*_: object) -> Connection:
+        receiver = LineReceiver()
+        return Connection(AnsweringTransport(receiver, loop), receiver)  # type: ignore[arg-type]
+
+    link = SerialLink(link_settings_from_config(cfg), opener=opener)
+    await link.connect()
+    program = parse_program(text)
+
+    def progress(st: Streamer) -> None:
+        if st.acked % STATUS_EVERY == 0:
+            st.modal  # noqa: B018  (a status poll brings the modal state up to date)
+
+    streamer = Streamer(LinkPort(link), program, stream_settings(cfg), Hooks(progress=progress))
+    if tracer is not None:
+        sys.settrace(tracer)
+    t0 = time.perf_counter()
+    try:
+        await streamer.run()
+    finally:
+        sys.settrace(None)
+    seconds = time.perf_counter() - t0
+    await link.close()
+    return seconds, program.total
+
+
+def count_bytecodes(text: str) -> tuple[Counter[str], int]:
+    """Bytecodes executed while streaming ``text``, by function; and the line count."""
+    counts: Counter[str] = Counter()
+
+    def tracer(frame: FrameType, event: str, arg: object) -> Callable[..., Any]:
+        frame.f_trace_opcodes = True
+        if event == "opcode":
+            code = frame.f_code
+            counts[f"{Path(code.co_filename).name}:{code.co_name}"] += 1
+        return tracer
+
+    _, lines = asyncio.run(stream(text, tracer))
+    return counts, lines
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--layers", type=int, default=40, help="layers of 200 lines (default 40)")
+    ap.add_argument("--by-function", action="store_true", help="the 25 costliest functions")
+    args = ap.parse_args()
+    text = synthetic_gcode(subparts=1, layers=args.layers, per_layer=200)
+    runs = [asyncio.run(stream(text)) for _ in range(3)]
+    lines = runs[0][1]
+    counts, _ = count_bytecodes(text)
+    print(f"linkpath bench: {lines} lines, one ok each, no port")
+    print(f"{'bytecodes_per_line':28} {sum(counts.values()) / lines:10.1f}")
+    print(f"{'warm_us_per_line':28} {1e6 * min(s for s, _ in runs) / lines:10.2f}")
+    if args.by_function:
+        for name, n in counts.most_common(25):
+            print(f"  {n / lines:8.1f}  {name}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
