@@ -209,3 +209,25 @@ async def test_lost_step_pauses_at_transition_and_resume_rehomes_and_rotates():
     assert restart[0] == "G28" and "M109 S200" in restart
     assert restart.index("G0 Z120.0000 F600") < restart.index("G0 A30.0000 C90.0000 F3000")
     assert st.stats.transition_failures == 1
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("read_every", [1, 3, 7])
+async def test_modal_state_and_layer_are_those_of_the_acknowledged_prefix(read_every: int):
+    """Read now and then (as a status poll does), the modal state is always the one the
+    acknowledged commands leave, and the layer the one of the last acknowledged command."""
+    prog = parse_program(GCODE)
+    seen: list[int] = []
+
+    def check(s: Streamer) -> None:
+        seen.append(s.acked)
+        if len(seen) % read_every == 0:
+            assert s.modal.snapshot() == prog.modal_before(s.acked).snapshot()
+        mark = prog.layer_at(s.acked - 1)
+        assert (s.subpart, s.layer) == ((mark.subpart, mark.layer) if mark else (None, None))
+
+    st = Streamer(FakePort(), prog, StreamSettings(lookahead=4), Hooks(progress=check))
+    async with asyncio.timeout(5):
+        assert await st.run() == "completed"
+    assert seen[-1] == prog.total and st.modal.snapshot() == prog.modal_before(
+        prog.total).snapshot()
