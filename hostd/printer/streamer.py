@@ -109,13 +109,17 @@ class Streamer:
 
     @property
     def modal(self) -> ModalState:
-        """The modal state the acknowledged commands leave (brought up to date when read:
-        the status, a pause or a checkpoint asks, not every ``ok``)."""
+        """The modal state the acknowledged commands leave."""
+        self._catch_up()
+        return self._modal
+
+    def _catch_up(self) -> None:
+        """Apply the commands acknowledged since the last call to the modal state (the
+        streamer does so once per batch of acknowledgements, a reader whenever it reads)."""
         commands, state = self.program.commands, self._modal
         for index in range(self._modal_upto, self.acked):
             state.apply(commands[index])
         self._modal_upto = self.acked
-        return state
 
     # -- control (from the job manager) --------------------------------------------------
 
@@ -171,8 +175,10 @@ class Streamer:
         if excess > 0:
             batch = max(1, self.settings.lookahead // 4)
             await _settled(inflight[excess + batch - 2][1])
-        while inflight and inflight[0][1].done():
-            self._ack_head()
+        if inflight[0][1].done():
+            while inflight and inflight[0][1].done():
+                self._ack_head()
+            self._catch_up()  # here, not in a status call that would hold the loop longer
 
     def _ack_head(self) -> None:
         """Take note of the (done) oldest line; raises the link's error if it failed."""
