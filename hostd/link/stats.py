@@ -32,25 +32,24 @@ class LinkCounters:
 
 @dataclass
 class RoundTrip:
-    """Time from sending a line to its ``ok``: last, mean and largest, in seconds."""
+    """Time from sending a line to its ``ok``: last, mean and largest, in seconds, and the
+    histogram (whose count and sum are the round trips' count and total)."""
 
-    count: int = 0
     last: float = 0.0
-    total: float = 0.0
     largest: float = 0.0
     buckets: Buckets = field(default_factory=lambda: Buckets(RTT_BOUNDS))
 
     def add(self, seconds: float) -> None:
-        """Record one round trip."""
+        """Record one round trip (once per ``ok``: kept to a few steps)."""
         self.buckets.observe(seconds)
-        self.count += 1
         self.last = seconds
-        self.total += seconds
-        self.largest = max(self.largest, seconds)
+        if seconds > self.largest:
+            self.largest = seconds
 
     def as_dict(self) -> dict[str, object]:
         """Milliseconds, plus the cumulative histogram in seconds, for the status snapshot."""
-        mean = self.total / self.count if self.count else 0.0
-        return {"count": self.count, "last_ms": round(self.last * 1e3, 3),
+        b = self.buckets
+        mean = b.total / b.n if b.n else 0.0
+        return {"count": b.n, "last_ms": round(self.last * 1e3, 3),
                 "mean_ms": round(mean * 1e3, 3), "max_ms": round(self.largest * 1e3, 3),
-                "histogram": self.buckets.snapshot()}
+                "histogram": b.snapshot()}

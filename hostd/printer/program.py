@@ -62,6 +62,12 @@ class Program:
             self._by_start = {t.start: t for t in self.transitions}
         return self._by_start.get(index)
 
+    def next_transition_start(self, index: int) -> int:
+        """The first command after ``index`` that starts a transition block (``total`` if
+        none)."""
+        starts = sorted(t.start for t in self.transitions if t.start > index)
+        return starts[0] if starts else self.total
+
     def layer_at(self, index: int) -> LayerMark | None:
         """The layer that command ``index`` belongs to (``None`` before the first).
 

@@ -104,6 +104,7 @@ class Streamer:
         self._pause_req = asyncio.Event()
         self._resume = asyncio.Event()
         self._cancel = asyncio.Event()
+        self._stop_asked = False  # a pause or cancel is asked for: stop between two lines
         self._needs_restart = False
         self.state = "idle"
 
@@ -127,6 +128,7 @@ class Streamer:
         if self.state == "streaming":
             self.pause_reason = reason
             self._pause_req.set()
+            self._stop_asked = True
 
     def request_resume(self) -> None:
         self._resume.set()
@@ -134,6 +136,7 @@ class Streamer:
     def request_cancel(self) -> None:
         self._cancel.set()
         self._resume.set()
+        self._stop_asked = True
 
     # -- the run ---------------------------------------------------------------------------
 
@@ -159,26 +162,32 @@ class Streamer:
                     if self._cancel.is_set():
                         return await self._finish_cancel()
                 continue
-            await self._feed(index)
-            index += 1
+            index = await self._feed(index, self.program.next_transition_start(index))
         await self._drain()
         self.state = "done"
         return "completed"
 
-    async def _feed(self, index: int) -> None:
-        """Submit command ``index``; when ``lookahead`` lines are out, sleep until a quarter
-        of them are acknowledged (one wake-up per batch, not per ``ok``), then take note of
-        every acknowledged line."""
-        inflight = self._inflight
-        inflight.append((index, self.port.submit(self.program.commands[index])))
-        excess = len(inflight) - self.settings.lookahead
-        if excess > 0:
-            batch = max(1, self.settings.lookahead // 4)
-            await _settled(inflight[excess + batch - 2][1])
-        if inflight[0][1].done():
-            while inflight and inflight[0][1].done():
-                self._ack_head()
-            self._catch_up()  # here, not in a status call that would hold the loop longer
+    async def _feed(self, index: int, end: int, stoppable: bool = True) -> int:
+        """Submit commands ``index`` .. ``end - 1`` in order; returns the next one to submit,
+        ``end`` unless ``stoppable`` and a pause or cancel was asked for.
+
+        When ``lookahead`` lines are out, it sleeps until a quarter of them are acknowledged
+        (one wake-up per batch, not per ``ok``), then takes note of every acknowledged line.
+        """
+        inflight, commands, submit = self._inflight, self.program.commands, self.port.submit
+        lookahead = self.settings.lookahead
+        batch = max(1, lookahead // 4)
+        while index < end and not (stoppable and self._stop_asked):
+            inflight.append((index, submit(commands[index])))
+            index += 1
+            excess = len(inflight) - lookahead
+            if excess > 0:
+                await _settled(inflight[excess + batch - 2][1])
+            if inflight[0][1].done():
+                while inflight and inflight[0][1].done():
+                    self._ack_head()
+                self._catch_up()  # here, not in a status call that would hold the loop
+        return index
 
     def _ack_head(self) -> None:
         """Take note of the (done) oldest line; raises the link's error if it failed."""
@@ -227,6 +236,7 @@ class Streamer:
         self._resume.clear()
         await self._resume.wait()
         self._pause_req.clear()
+        self._stop_asked = self._cancel.is_set()
         if self._cancel.is_set():
             return
         if self._needs_restart:
@@ -261,8 +271,7 @@ class Streamer:
         """Run the block ``tr`` as a transaction; False (job to pause) on a mismatch."""
         await self._extra("M400")
         await self._check_temperature()
-        for index in range(tr.start, tr.end):
-            await self._feed(index)
+        await self._feed(tr.start, tr.end, stoppable=False)  # a transaction: never cut short
         await self._drain()
         await self._extra("M400")
         self.stats.extra_commands.append("M114")

@@ -231,3 +231,29 @@ async def test_modal_state_and_layer_are_those_of_the_acknowledged_prefix(read_e
         assert await st.run() == "completed"
     assert seen[-1] == prog.total and st.modal.snapshot() == prog.modal_before(
         prog.total).snapshot()
+
+
+@pytest.mark.asyncio
+async def test_a_pause_asked_inside_a_transition_waits_for_the_whole_block():
+    prog = parse_program(GCODE)
+    (tr,) = prog.transitions
+    port = FakePort()
+    paused = asyncio.Event()
+
+    def on_progress(s: Streamer) -> None:
+        if s.acked == tr.start + 1:  # the block's first command is done, two are to come
+            s.request_pause()
+
+    st = Streamer(port, prog, StreamSettings(lookahead=1), Hooks(
+        progress=on_progress, paused=lambda s, reason: paused.set()))
+    async with asyncio.timeout(5):
+        task = asyncio.create_task(st.run())
+        await paused.wait()
+        block = prog.commands[tr.start:tr.end]
+        i = port.log.index(block[0])
+        # the block, then its M400 and read-back, and only then the pause
+        assert port.log[i:i + len(block) + 2] == [*block, "M400", "M114"]
+        assert port.log[i + len(block) + 2] == "M400" and st.acked == tr.end
+        st.request_resume()
+        assert await task == "completed"
+    assert file_commands(port.log, st.stats.extra_commands) == prog.commands
