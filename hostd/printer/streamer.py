@@ -1,9 +1,9 @@
 """Feed one job's G-code to the printer: progress, pause/resume, cancel, transitions.
 
 The streamer is the only writer of job lines. It keeps at most ``lookahead`` lines submitted
-and not yet acknowledged, applies each command to its :class:`ModalState` when the firmware
-acknowledges it (so the tracked state is always the state of the acknowledged prefix), and
-between two lines it may stop: for a pause (retract, lift along Z, wait, restore), a cancel
+and not yet acknowledged, applies the acknowledged commands to its :class:`ModalState` (once
+per batch of acknowledgements, and whenever the state is read, so what a reader sees is
+always the state of the acknowledged prefix), and between two lines it may stop: for a pause (retract, lift along Z, wait, restore), a cancel
 (the end script) or a rotate/return transition run as a transaction (M400, temperature check,
 block, M400, M114 readback, checkpoint).
 """
