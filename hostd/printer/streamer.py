@@ -3,9 +3,10 @@
 The streamer is the only writer of job lines. It keeps at most ``lookahead`` lines submitted
 and not yet acknowledged, applies the acknowledged commands to its :class:`ModalState` (once
 per batch of acknowledgements, and whenever the state is read, so what a reader sees is
-always the state of the acknowledged prefix), and between two lines it may stop: for a pause (retract, lift along Z, wait, restore), a cancel
-(the end script) or a rotate/return transition run as a transaction (M400, temperature check,
-block, M400, M114 readback, checkpoint).
+always the state of the acknowledged prefix), and between two lines it may stop: for a
+pause (retract, lift along Z, wait, restore), a cancel (the end script) or a rotate/return
+transition run as a transaction (M400, temperature check, block, M400, M114 readback,
+checkpoint).
 """
 
 from __future__ import annotations
