@@ -36,8 +36,7 @@ STAGES = ("sections", "skeleton", "layers", "zones", "toolpaths", "obstacles", "
 
 def plan_once(dec: Decomposition) -> PrintPlan:
     """One plan from cold caches (the skeleton and solid caches are cleared first)."""
-    planner._CURVES.clear()
-    planner._SOLIDS.clear()
+    planner.clear_caches()
     return planner.plan_print(dec, ProcessSettings(), MachineGeometry(), Printhead.default())
 
 

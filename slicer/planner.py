@@ -165,8 +165,17 @@ def _solid(mesh: trimesh.Trimesh) -> m3.Manifold:
 def _curve(mesh: trimesh.Trimesh, start: np.ndarray, normal: np.ndarray) -> SkeletonCurve:
     key = (mesh.identifier_hash, tuple(np.round(start, 6)), tuple(np.round(normal, 9)))
     if key not in _CURVES:
+        if len(_CURVES) > 256:  # a long-lived slicing worker: keep the cache bounded
+            _CURVES.clear()
         _CURVES[key] = skeleton_curve(mesh, start, normal)
     return _CURVES[key]
+
+
+def clear_caches() -> None:
+    """Forget the skeleton curves and slicing solids kept between plans of the same mesh
+    (a benchmark that repeats a slice times it cold by calling this first)."""
+    _CURVES.clear()
+    _SOLIDS.clear()
 
 
 def _base_centre(solid: m3.Manifold, point: np.ndarray, normal: np.ndarray,
