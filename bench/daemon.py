@@ -150,7 +150,8 @@ async def stream_and_measure(c: Client, sock: Path, pids: dict[str, int]) -> dic
     watcher = Client(*await asyncio.open_unix_connection(str(sock)))
     await watcher.call("events.subscribe", events=WATCHED)
     job = await c.call("job.submit", name="bench.gcode", data=text, encoding="text")
-    out, watched = await watch(watcher, pids)
+    async with asyncio.timeout(300):  # the job streams in ~40 s: no events means a fault
+        out, watched = await watch(watcher, pids)
     watcher.w.close()
     polled, polled_span = await poll(c, pids)
     out |= polled
