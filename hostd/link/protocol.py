@@ -421,8 +421,7 @@ class Protocol:
             self.rtt.add(now - sent.sent_at)
         first = self._executed + 1
         self._executed = line
-        if self.window.size < self.window.limit:
-            self.window.grow()
+        self.window.grow()
         if first == line:  # one line, as every plain ok: no loops
             item = self._history.get(line)
             if item is not None and item.seq is not None:

@@ -65,8 +65,7 @@ class Program:
     def next_transition_start(self, index: int) -> int:
         """The first command after ``index`` that starts a transition block (``total`` if
         none)."""
-        starts = sorted(t.start for t in self.transitions if t.start > index)
-        return starts[0] if starts else self.total
+        return min((t.start for t in self.transitions if t.start > index), default=self.total)
 
     def layer_at(self, index: int) -> LayerMark | None:
         """The layer that command ``index`` belongs to (``None`` before the first).
