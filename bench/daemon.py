@@ -112,14 +112,16 @@ async def spawn_emulator() -> tuple[asyncio.subprocess.Process, str]:
     return proc, path
 
 
-async def spawn_daemon(tmp: Path, port: str, profile: str | None, partial: bool
+async def spawn_daemon(tmp: Path, port: str, profile: str | None, partial: bool,
+                       read_hold: float
                        ) -> tuple[asyncio.subprocess.Process, asyncio.Task[None]]:
     cfg = tmp / "hostd.yaml"
     cfg.write_text(json.dumps({
         "daemon": {"socket": str(tmp / "hostd.sock"), "state_dir": str(tmp / "state"),
                    "log_level": "info"},
         "metrics": {"enabled": False},
-        "serial": {"port": port, "baud": BAUD, "partial_lines": partial},
+        "serial": {"port": port, "baud": BAUD, "partial_lines": partial,
+                   "read_hold": read_hold},
         "sim": {"throttle": True}}))
     prof = ["-m", "cProfile", "-o", profile] if profile else []
     proc = await asyncio.create_subprocess_exec(
@@ -230,13 +232,13 @@ def wire_limit(text: str, first: int, last: int) -> float:
 
 
 async def bench(tmp: Path, in_process: bool, profile: str | None,
-                partial: bool) -> dict[str, float]:
+                partial: bool, read_hold: float) -> dict[str, float]:
     emu = None
     port = "sim://"
     if not in_process:
         emu, port = await spawn_emulator()
     try:
-        proc, drain = await spawn_daemon(tmp, port, profile, partial)
+        proc, drain = await spawn_daemon(tmp, port, profile, partial, read_hold)
         try:
             r, w = await asyncio.open_unix_connection(str(tmp / "hostd.sock"))
             c = Client(r, w)
@@ -265,14 +267,19 @@ def main() -> int:
     ap.add_argument("--partial-lines", action=argparse.BooleanOptionalAction, default=True,
                     help="serial.partial_lines (the first part of a line goes out when the "
                          "credit is short)")
+    ap.add_argument("--read-hold", type=float, default=0.7,
+                    help="serial.read_hold (share of the wire time still queued that a "
+                         "real port is left unread while oks arrive quickly; 0: each at once)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="hostd-bench-") as name:
-        res = asyncio.run(bench(Path(name), args.in_process, args.profile, args.partial_lines))
+        res = asyncio.run(bench(Path(name), args.in_process, args.profile, args.partial_lines,
+                                 args.read_hold))
     res["floor_us_per_wakeup"] = 1e6 * wakeup.measure(3000, 0.00168, write=True)[0]
     mode = "in-process sim:// (CPU includes the emulator)" if args.in_process else \
         "emulator in its own process on a pty"
     print(f"hostd daemon bench, {BAUD} baud, {mode}, "
-          f"partial lines {'on' if args.partial_lines else 'off'}")
+          f"partial lines {'on' if args.partial_lines else 'off'}, "
+          f"read hold {args.read_hold:g}")
     for key, value in res.items():
         target = TARGETS.get(key)
         mark = "" if target is None else (" ok" if value < target else " OVER TARGET")

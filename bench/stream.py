@@ -13,7 +13,7 @@ The machine may be shared: ``--repeat N`` runs every case N times and prints its
 (highest share; the CPU figure is the least of the N).
 
 Run: ``.venv/bin/python bench/stream.py [--lines N] [--job sliced|planar|five-axis]
-[--repeat N] [--no-partial-lines]``.
+[--repeat N] [--no-partial-lines] [--read-hold SHARE]``.
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ async def run_case(baud: int, buffer: int, mode: str, lines: list[str],
         path = (await proc.stdout.readline()).decode().strip()
         link = SerialLink(LinkSettings(port=path, baud=baud, flow_control=flow,
                                        rx_buffer_bytes=buffer, partial_lines=partial,
-                                       ok_timeout=5.0))
+                                       read_hold=HOLD[0], ok_timeout=5.0))
         await link.connect()
         cpu0, t0 = time.process_time(), time.perf_counter()
         sent0 = link.status()["lines_sent"]
@@ -118,11 +118,13 @@ def sliced_job(n: int) -> list[str]:
     return cmds[len(cmds) // 3:len(cmds) // 3 + n]  # mid-print: layers, not the start script
 
 
+HOLD = [LinkSettings.read_hold]  # serial.read_hold, from --read-hold
 JOBS = {"sliced": sliced_job, "planar": planar_job, "five-axis": five_axis_job}
 
 
 async def main(n: int, jobs: list[str], repeat: int, partial: bool) -> None:
-    print(f"partial lines: {'on' if partial else 'off'}; best of {repeat}")
+    print(f"partial lines: {'on' if partial else 'off'}; read hold {HOLD[0]:g}; "
+          f"best of {repeat}")
     print(f"{'job':>9} {'baud':>7} {'buffer':>6} {'mode':>10} {'lines/s':>8} {'bytes/s':>8} "
           f"{'wire %':>6} {'resent':>6} {'split':>5} {'cpu s/1000':>10}")
     for job in jobs:
@@ -152,5 +154,10 @@ if __name__ == "__main__":
     parser.add_argument("--partial-lines", action=argparse.BooleanOptionalAction,
                         default=LinkSettings.partial_lines,
                         help="send the first part of a line when the credit is short")
+    parser.add_argument("--read-hold", type=float, default=LinkSettings.read_hold,
+                        help="serial.read_hold: share of the wire time still queued that "
+                             "the port is left unread while oks arrive quickly (0: each at "
+                             "once)")
     args = parser.parse_args()
+    HOLD[0] = args.read_hold
     asyncio.run(main(args.lines, args.job or list(JOBS), args.repeat, args.partial_lines))

@@ -127,6 +127,11 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "partial_lines": Flag("Window mode: send the first part of the next line when the "
                               "credit is short of the whole line (fills the receive buffer "
                               "to the byte); false: whole lines only.", True),
+        "read_hold": Number("Window mode, real ports, receive buffer of 120 bytes or more: "
+                            "while oks come at the wire's pace, leave the port unread for "
+                            "this share of the wire time still queued (at most 10 ms), so "
+                            "one wake-up reads several; 0: read each at once.", 0.7,
+                            lo=0.0, hi=0.9),
         "ok_timeout": Number("Seconds without an ok before nudging with M105.", 10.0,
                              lo=0.05, hi=3600),
         "nudges": Number("M105 nudges after successive timeouts before the link is lost.", 1,

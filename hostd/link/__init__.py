@@ -20,6 +20,10 @@ Layers
 :mod:`~hostd.link.transport`
     ``open_port``: ``sim://`` (in-process emulator on a socket pair) or a real port / pty,
     as an asyncio transport with a line-splitting protocol; ``open_socket`` for any socket.
+:mod:`~hostd.link.read_hold`
+    Pure: ``ReadHold``, when a real port is read next. While ``ok`` come at the wire's pace
+    the port is left unread for ``serial.read_hold`` of the wire time still queued, so one
+    wake-up of the loop takes in several.
 
 Using the link
 --------------

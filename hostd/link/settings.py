@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from hostd.config import Config
 
+BITS_PER_BYTE = 10  # start + 8 data + stop bits on the wire
+
 
 @dataclass(frozen=True)
 class LinkSettings:
@@ -27,6 +29,10 @@ class LinkSettings:
         In window mode, send the first part of the next line when the credit is short of the
         whole line (character counting, as Grbl's streaming protocol): the receive buffer holds
         bytes, not lines, so it may be filled to exactly its size.
+    read_hold
+        Window mode, real ports: while replies come at the wire's pace, leave the port
+        unread for this share of the wire time still queued, so one wake-up takes in
+        several ``ok`` (:mod:`hostd.link.read_hold`); 0 reads each reply as it arrives.
     ok_timeout
         Seconds without progress before the M105 nudge; as long again before the link is lost.
     nudges
@@ -50,6 +56,7 @@ class LinkSettings:
     flow_control: str = "window"
     rx_buffer_bytes: int = 127
     partial_lines: bool = True
+    read_hold: float = 0.7
     ok_timeout: float = 10.0
     nudges: int = 1
     resend_limit: int = 10
@@ -67,6 +74,7 @@ def link_settings_from_config(cfg: Config) -> LinkSettings:
     return LinkSettings(
         port=s["port"], baud=int(s["baud"]), flow_control=s["flow_control"],
         rx_buffer_bytes=int(s["rx_buffer_bytes"]), partial_lines=bool(s["partial_lines"]),
+        read_hold=float(s["read_hold"]),
         ok_timeout=float(s["ok_timeout"]),
         nudges=int(s["nudges"]),
         resend_limit=int(s["resend_limit"]), history_size=int(s["history_size"]),

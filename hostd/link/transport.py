@@ -16,7 +16,8 @@ from dataclasses import dataclass
 import serial
 import serial_asyncio
 
-from hostd.link.settings import LinkSettings
+from hostd.link.read_hold import HOLD_MIN_BUFFER, ReadHold
+from hostd.link.settings import BITS_PER_BYTE, LinkSettings
 from hostd.sim.server import SocketEmulator
 from hostd.sim.settings import SimSettings
 
@@ -77,24 +78,74 @@ class DirectSerialTransport(serial_asyncio.SerialTransport):
     per line); asyncio's own socket and pipe transports try the write first, and so does this.
     It also reads and writes with a single ``os.read`` or ``os.write`` (the port is
     non-blocking: pyserial's calls add timeout bookkeeping, and its read a ``select``).
+
+    With a :class:`ReadHold` it reads in batches while replies come at the wire's pace: after
+    data, the port may be left unread for a moment and then read by a timer, so one wake-up
+    takes in several ``ok``. When a timed read finds nothing, the port is watched again.
     """
 
+    def __init__(self, loop: asyncio.AbstractEventLoop, protocol: asyncio.Protocol,
+                 serial_instance: serial.Serial, *, hold: ReadHold | None = None) -> None:
+        self._hold = hold
+        self._held: asyncio.TimerHandle | None = None
+        super().__init__(loop, protocol, serial_instance)
+
     def _read_ready(self) -> None:
-        """Read what the port holds with one system call (pyserial's ``read`` adds a
-        ``select`` and timeout bookkeeping to every call)."""
+        data = self._read_once(ready=True)
+        if data:
+            self._protocol.data_received(data)
+            if self._hold is not None:
+                self._hold_or_watch(data)
+
+    def _read_once(self, *, ready: bool) -> bytes:
+        """What the port holds, in one system call (``b""`` if nothing, or on closing).
+
+        A tty read with nothing to read returns no bytes (pyserial sets ``VMIN = 0``): that
+        means the device is gone only when the loop had reported the port ``ready``.
+        """
         try:
             data = os.read(self._serial.fileno(), self._max_read_size)
         except (BlockingIOError, InterruptedError):
-            return
+            return b""
         except OSError as exc:
             self._close(exc=serial.SerialException(f"read failed: {exc}"))
-            return
-        if not data:
+            return b""
+        if not data and ready:
             self._close(exc=serial.SerialException("device disconnected"))
+        return data
+
+    def _hold_or_watch(self, data: bytes) -> None:
+        """``data`` just arrived and was handled: hold the next read, or watch the port."""
+        assert self._hold is not None
+        hold = self._hold.after_data(self._loop.time(), data.count(b"\n"))
+        if self._closing:
             return
-        self._protocol.data_received(data)
+        if hold:
+            self._remove_reader()
+            self._held = self._loop.call_later(hold, self._read_held)
+        else:
+            self._ensure_reader()
+
+    def _read_held(self) -> None:
+        self._held = None
+        if self._closing:
+            return
+        data = self._read_once(ready=False)
+        if data:
+            self._protocol.data_received(data)
+            self._hold_or_watch(data)
+        else:
+            self._ensure_reader()
+
+    def pause_reading(self) -> None:
+        if self._held is not None:
+            self._held.cancel()
+            self._held = None
+        super().pause_reading()
 
     def write(self, data: bytes) -> None:  # type: ignore[override]
+        if self._hold is not None:
+            self._hold.wrote(self._loop.time(), len(data))
         if self._closing or self._write_buffer or not data:
             super().write(data)
             return
@@ -144,7 +195,7 @@ async def open_port(settings: LinkSettings, sim: SimSettings | None) -> Connecti
     loop = asyncio.get_running_loop()
     port = serial.serial_for_url(settings.port, baudrate=settings.baud)
     receiver = LineReceiver()
-    transport = DirectSerialTransport(loop, receiver, port)
+    transport = DirectSerialTransport(loop, receiver, port, hold=read_hold(settings))
     return Connection(transport, receiver)
 
 
@@ -154,6 +205,17 @@ async def open_socket(sock: socket.socket) -> Connection:
     transport, _ = await asyncio.get_running_loop().create_connection(lambda: receiver,
                                                                       sock=sock)
     return Connection(transport, receiver)
+
+
+def read_hold(settings: LinkSettings) -> ReadHold | None:
+    """Held reads for a real port in window mode with ``serial.read_hold`` > 0 and a receive
+    buffer of :data:`HOLD_MIN_BUFFER` bytes or more. With one line in flight (ping-pong), or
+    a buffer of less than 2.5 lines, a hold has at most one reply to collect: it could only
+    delay it."""
+    if (settings.flow_control != "window" or settings.read_hold <= 0
+            or settings.rx_buffer_bytes < HOLD_MIN_BUFFER):
+        return None
+    return ReadHold(settings.read_hold, BITS_PER_BYTE / settings.baud)
 
 
 async def _open_sim(sim: SimSettings) -> Connection:
