@@ -17,6 +17,10 @@ trips: every poll builds and encodes the whole snapshot, a heavier client than h
 Targets: RSS < 80 MB idle, daemon streaming CPU < 10 % of a core (both phases), status p99
 < 10 ms.
 
+``acked_lines_per_read`` is the lines acknowledged per read of the port in the second phase
+(``serial.read_hold`` batches the ``ok`` while the wire is the bottleneck; ``--read-hold 0``
+reads each at once).
+
 Last, ``floor_us_per_wakeup`` is :mod:`wakeup`'s bare asyncio wake-up and write per ``ok``
 (no hostd code) on this machine right after: a shared VM's speed drifts, and this tells a
 slow spell from a slower daemon.
@@ -199,10 +203,12 @@ async def poll(c: Client, pids: dict[str, int]
     t0 = time.monotonic()
     lat: list[float] = []
     acked: list[tuple[float, int]] = []  # (time of the answer, acknowledged lines)
+    link0: dict[str, int] | None = None  # the link's counters at the first poll
     while True:
         s = time.perf_counter()
         status = await c.call("printer.status")
         lat.append((time.perf_counter() - s) * 1000)
+        link0, link1 = link0 or status["link"], status["link"]
         cur = status["jobs"]["current"]
         if cur is None or cur["progress"] > POLL_UNTIL or len(lat) >= 2000:
             break
@@ -218,6 +224,9 @@ async def poll(c: Client, pids: dict[str, int]
     out.update(status_p50_ms=statistics.median(lat),
                status_p99_ms=lat[int(0.99 * (len(lat) - 1))], streamed_s=t1 - t0,
                lines_per_s=rate, status_calls=len(lat))
+    assert link0 is not None
+    out["acked_lines_per_read"] = ((link1["lines_acked"] - link0["lines_acked"])
+                                   / max(1, link1["reads"] - link0["reads"]))
     return out, (acked[0][1], acked[-1][1])
 
 

@@ -141,6 +141,7 @@ class Protocol:
 
     def receive_lines(self, lines: list[str], now: float) -> list[Action]:
         """Handle lines received together; the lines they free go out after all of them."""
+        self.counters.reads += 1
         for line in lines:
             if line in _PLAIN_OK and self.state == "ready" and self._after_resend is None:
                 self._plain_ok(now)  # nine replies in ten: the short path of _on_ok

@@ -15,6 +15,7 @@ class LinkCounters:
     lines_acked: int = 0
     lines_resent: int = 0
     lines_split: int = 0  # lines whose first part went out ahead of the credit for the rest
+    reads: int = 0  # batches of replies handled together: one port read each
     resend_requests: int = 0
     duplicate_resends: int = 0
     checksum_errors: int = 0

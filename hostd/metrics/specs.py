@@ -92,6 +92,8 @@ SPECS: tuple[Spec, ...] = (
          "link.lines_acked"),
     Spec("hostd_serial_lines_resent_total", "counter", "Lines sent again after a resend request.",
          "link.lines_resent"),
+    Spec("hostd_serial_reads_total", "counter", "Port reads that brought replies (while reads "
+         "are held, one read takes in several oks).", "link.reads"),
     Spec("hostd_serial_checksum_errors_total", "counter", "Checksum/line-number errors reported.",
          "link.checksum_errors"),
     Spec("hostd_serial_timeouts_total", "counter", "Acknowledgement timeouts.", "link.timeouts"),

@@ -65,6 +65,16 @@ def test_partial_lines_fill_the_buffer_to_the_byte_and_finish_the_line_first() -
     assert p.inflight_bytes == 63 and p.counters.lines_split == 2
 
 
+def test_replies_received_together_count_as_one_read() -> None:
+    p = ready()
+    for i in range(3):
+        p.submit(f"G1 X{i}", 0.0)
+    before = p.counters.reads
+    assert acks(p.receive_lines(["ok", "ok"], 0.1)) == [1, 2]
+    assert acks(p.receive_lines(["ok"], 0.2)) == [3]
+    assert p.counters.reads - before == 2 and p.snapshot()["reads"] == p.counters.reads
+
+
 def test_pingpong_has_one_line_in_flight() -> None:
     p = ready(flow_control="pingpong")
     first = writes(p.submit("G28", 0.0)[1])

@@ -22,7 +22,7 @@ def full_snapshot() -> dict:
     return {
         "daemon": {"info": {"version": "0.1.0", "firmware_name": "hostd-sim"}},
         "link": {"connected": True, "capabilities": {"AUTOREPORT_TEMP": True, "EEPROM": False},
-                 "lines_sent": 120, "lines_acked": 118, "lines_resent": 3,
+                 "lines_sent": 120, "lines_acked": 118, "lines_resent": 3, "reads": 60,
                  "checksum_errors": 2, "timeouts": 1, "reconnects": 0, "window_bytes": 127,
                  "ok_rtt": {"histogram": rtt.snapshot()},
                  "temperatures": {"T": {"actual": 209.5, "target": 210.0, "power": 80},
