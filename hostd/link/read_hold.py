@@ -5,10 +5,13 @@ the bottleneck hostd reads the port in batches: after data, it leaves the port u
 share of the time the bytes already written still need on the wire (a clock of the wire at
 the configured baud, advanced by every write). The lines still on their way keep the wire busy
 meanwhile, and a hold shrinks by itself when replies are late, since less is left on the wire
-by then. A hold is taken only when it is expected to collect another reply: it must last at
-least the mean gap between replies. So when replies come slowly (the firmware's planner, not
-the wire, sets the pace), or too little is queued for another reply to come in meanwhile (a
-small receive buffer), the port is read the moment a reply arrives.
+by then, and it always leaves a margin of queued wire time for a late timer. A hold is taken
+only when it is likely to collect another reply: it must last at least half the mean gap
+between replies (refusing holds a little short of one gap only moved the next read to a
+moment later, for the reply then due). So when replies come slowly (the firmware's planner,
+not the wire, sets the pace) the port is read the moment a reply arrives. Receive buffers
+too small to hold more than one reply's worth of lines get no holds at all
+(:func:`hostd.link.transport.read_hold`).
 """
 
 from __future__ import annotations

@@ -30,9 +30,10 @@ class LinkSettings:
         whole line (character counting, as Grbl's streaming protocol): the receive buffer holds
         bytes, not lines, so it may be filled to exactly its size.
     read_hold
-        Window mode, real ports: while replies come at the wire's pace, leave the port
-        unread for this share of the wire time still queued, so one wake-up takes in
-        several ``ok`` (:mod:`hostd.link.read_hold`); 0 reads each reply as it arrives.
+        Window mode, real ports, receive buffers of 120 bytes or more: while replies come at
+        the wire's pace, leave the port unread for this share of the wire time still queued,
+        so one wake-up takes in several ``ok`` (:mod:`hostd.link.read_hold`); 0 reads each
+        reply as it arrives.
     ok_timeout
         Seconds without progress before the M105 nudge; as long again before the link is lost.
     nudges
