@@ -1,17 +1,20 @@
 """Seconds per slicing stage, STL to checked G-code, with the paper's Table 1 comparison.
 
 Run: ``.venv/bin/python bench/slice.py [--heights 0.1 0.2 0.3] [--models pipe2 ...]
-[--repeat N]`` (``--repeat``: the fastest of N slices per case is shown).
+[--repeat N] [--no-layer-processes]`` (``--repeat``: the fastest of N slices per case is
+shown; ``--no-layer-processes``: long sub-parts' toolpaths on threads only).
 Each model and layer height is sliced five-axis (decompose, plan, G-code, read, replay) and
 planar (A = C = 0, no decomposition). Printed: seconds per stage, total wall and CPU time,
 filament and time of both prints and the decrement (the paper's Table 1). Target: pipe3-50k
 at 0.2 mm in under 10 s. On a shared machine the wall time also measures the neighbours, so
-the CPU time is printed beside it.
+the CPU time (with the worker processes') is printed beside it. ``paths`` is the toolpath
+part of ``plan``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 
 import trimesh
 from harness import MODELS, best_of, check_models
@@ -22,7 +25,7 @@ from slicer.pipeline import SliceResult, slice_model
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 
-STAGES = ("load", "plan", "gcode", "read", "replay")
+STAGES = ("load", "plan", "plan.paths", "gcode", "read", "replay")  # plan.paths: in plan
 
 
 def run(mesh: trimesh.Trimesh, height: float, planar: bool, repeat: int
@@ -56,12 +59,17 @@ def main() -> None:
                         "(default: pipe2 pipe3 at every height, pipe3-50k at 0.2)")
     parser.add_argument("--repeat", type=int, default=1,
                         help="slices per case; the fastest is shown (the machine may be shared)")
+    parser.add_argument("--no-layer-processes", action="store_true",
+                        help="the toolpaths of long sub-parts on threads only, not in worker "
+                             "processes by chunks of layers (the comparison)")
     args = parser.parse_args()
     check_models(parser, args.models)
+    if args.no_layer_processes:
+        planner.layer_processes = lambda longest: contextlib.nullcontext(None)
     jobs = ([(m, h) for m in args.models for h in args.heights] if args.models else
             [(m, h) for m in ("pipe2", "pipe3") for h in args.heights] + [("pipe3-50k", 0.2)])
     print(f"{'model':>10} {'faces':>6} {'h':>4} {'kind':>6} {'sp':>3} "
-          + " ".join(f"{k:>6}" for k in STAGES)
+          + " ".join(f"{k.removeprefix('plan.'):>6}" for k in STAGES)
           + f" {'wall s':>7} {'cpu s':>6} {'fil mm':>8} {'time s':>7} {'wall%':>6} {'coll':>4}")
     table = []
     for name, h in jobs:

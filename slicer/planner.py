@@ -34,7 +34,7 @@ from slicer.planes2d import from_plane, plane_frame, section, slicing_solid
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 from slicer.skeleton import SkeletonCurve, line_curve, skeleton_curve
-from slicer.subpart_paths import build_layers, pool, workers
+from slicer.subpart_paths import build_layers, layer_processes, pool, workers
 
 __all__ = ["SlicingError", "plan_planar", "plan_print"]
 
@@ -286,9 +286,11 @@ def plan_print(decomposition, settings: ProcessSettings, geometry: MachineGeomet
         machine.parts = np.vstack([machine.parts, _surface_samples(sp.mesh, OBSTACLE_SPACING)])
         timer.lap("obstacles")
     threads = workers()
-    with pool(threads) as leaf, pool(min(threads, len(marched))) as builder:
+    longest = max((len(layers) for _, _, layers, _, _ in marched), default=0)
+    with pool(threads) as leaf, pool(min(threads, len(marched))) as builder, \
+            layer_processes(longest) as procs:
         jobs = [builder.submit(build_layers, sp.index, layers, poses, settings,
-                               sp.parent is None, kids, leaf)
+                               sp.parent is None, kids, leaf, procs)
                 for sp, _, layers, poses, kids in marched]
         plans = [SubpartPlan(sp.index, sp.parent, None if sp.parent is None else base[0],
                              None if sp.parent is None else base[1],

@@ -17,16 +17,30 @@ The planner marches every sub-part first and builds all their paths afterwards: 
 pool beside the marching made the marching wait for the GIL after each numpy or GEOS call
 (manifold3d and CGAL keep it while they work), which cost more than the overlap gained.
 
+A sub-part of :data:`CHUNK_MIN_LAYERS` layers or more (the root of a branched part holds most
+of them) has its stages 1 and 2 computed in worker processes instead, by chunks of consecutive
+layers (a chunk also computes the shell of the layer after its last, which stage 2 reads):
+threads gain nothing there, as the Python between the GEOS calls holds the GIL. The workers
+are forked (:func:`layer_processes`; a forked child has the parent's modules and only runs
+shapely and numpy here) and the calls are the same as in a plain loop, so the plan is the same
+byte for byte; if the pool breaks, the sub-part is computed on the threads as before.
+
 Stage timings are CPU seconds of the threads doing the work (:func:`time.thread_time`),
 summed over tasks: on two cores they add up to more than the wall time.
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import itertools
+import multiprocessing
 import os
+import signal
 import time
-from collections.abc import Callable, Sequence
-from concurrent.futures import Executor, Future, ThreadPoolExecutor
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import TypeVar
 
@@ -44,6 +58,9 @@ from slicer.zones import solid_zone, wall_footing
 
 T = TypeVar("T")
 MAX_WORKERS = 4
+CHUNK_MIN_LAYERS = 100  # a sub-part with this many layers has stages 1-2 in processes
+CHUNKS_PER_PROCESS = 3  # chunks of layers per worker process: evens out unequal chunks
+PR_SET_PDEATHSIG = 1  # prctl(2): a signal for this process when its parent dies
 
 
 class InlineExecutor(Executor):
@@ -70,6 +87,34 @@ def workers() -> int:
 def pool(threads: int) -> Executor:
     """A thread pool of ``threads``, or an :class:`InlineExecutor` for one."""
     return ThreadPoolExecutor(threads) if threads > 1 else InlineExecutor()
+
+
+@contextlib.contextmanager
+def layer_processes(longest: int, min_layers: int = CHUNK_MIN_LAYERS
+                    ) -> Iterator[ProcessPoolExecutor | None]:
+    """Forked worker processes, one per core (at most :data:`MAX_WORKERS`), when a sub-part
+    of ``longest`` layers reaches ``min_layers`` and there are two cores; else ``None``."""
+    n = _processes()
+    if n < 2 or longest < min_layers:
+        yield None
+        return
+    with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"),
+                             initializer=die_with_parent, initargs=(os.getpid(),)) as procs:
+        yield procs
+
+
+def die_with_parent(parent: int) -> None:
+    """Worker initializer: on Linux the kernel kills this worker when the process that
+    started it dies (a slicer killed for memory, or with its daemon, leaves no orphans
+    waiting for work forever)."""
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:  # it died before the request took effect
+        os._exit(1)
+
+
+def _processes() -> int:
+    return min(MAX_WORKERS, os.cpu_count() or 1)
 
 
 def fill_spec(settings: ProcessSettings) -> FillSpec:
@@ -164,9 +209,49 @@ def _lift(paths: Sequence[Path2D], layer: LayerPlane, settings: ProcessSettings,
     return out
 
 
+def _done(value: T) -> Future[T]:
+    out: Future[T] = Future()
+    out.set_result(value)
+    return out
+
+
+def chunk_stages(layers: list[LayerPlane], settings: ProcessSettings, grounded: bool,
+                 bases: list[ChildBase], lo: int, hi: int
+                 ) -> tuple[list[tuple[Shell, float]], list[tuple[_Zones, float, float]]]:
+    """Stages 1 and 2 of layers ``lo`` to ``hi - 1`` (run in a worker process): their
+    timed shells and zones. The shell of layer ``hi`` is computed too, not returned."""
+    spec = fill_spec(settings)
+    shells: list[Future[tuple[Shell, float]] | None] = [None] * len(layers)
+    for i in range(lo, min(hi + 1, len(layers))):
+        shells[i] = _done(timed(shell, layers[i].region, spec))
+    job = _Job(layers, shells, settings, grounded, bases)  # type: ignore[arg-type]
+    return ([shells[i].result() for i in range(lo, hi)],  # type: ignore[union-attr]
+            [job.layer(i) for i in range(lo, hi)])
+
+
+def _staged_in_processes(layers: list[LayerPlane], settings: ProcessSettings, grounded: bool,
+                         bases: list[ChildBase], procs: ProcessPoolExecutor
+                         ) -> tuple[list[Future[tuple[Shell, float]]],
+                                    list[Future[tuple[_Zones, float, float]]]]:
+    """Stages 1 and 2 of every layer, by chunks in ``procs``, as completed futures."""
+    n = len(layers)
+    k = min(n, CHUNKS_PER_PROCESS * _processes())
+    bounds = [n * j // k for j in range(k + 1)]
+    chunks = [procs.submit(chunk_stages, layers, settings, grounded, bases, lo, hi)
+              for lo, hi in itertools.pairwise(bounds)]
+    shells: list[Future[tuple[Shell, float]]] = []
+    staged: list[Future[tuple[_Zones, float, float]]] = []
+    for chunk in chunks:
+        sh, st = chunk.result()
+        shells += map(_done, sh)
+        staged += map(_done, st)
+    return shells, staged
+
+
 def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, float]],
                  settings: ProcessSettings, grounded: bool, bases: list[ChildBase],
-                 pool: Executor) -> tuple[list[Layer], dict[str, float]]:
+                 pool: Executor, procs: ProcessPoolExecutor | None = None,
+                 min_layers: int = CHUNK_MIN_LAYERS) -> tuple[list[Layer], dict[str, float]]:
     """Zones, toolpaths and plan Layers of one sub-part.
 
     Parameters
@@ -182,6 +267,9 @@ def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, 
         Its children's bases (interface zones).
     pool : Executor
         Runs stages 1 and 2; its tasks never wait on each other.
+    procs : ProcessPoolExecutor, optional
+        Runs stages 1 and 2 instead, by chunks of layers, when the sub-part has
+        ``min_layers`` layers or more (:func:`layer_processes`).
 
     Returns
     -------
@@ -189,11 +277,18 @@ def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, 
     seconds : dict
         CPU seconds of "toolpaths" (shells, fill, order, lift) and "zones".
     """
-    spec = fill_spec(settings)
-    shells = [pool.submit(timed, shell, lp.region, spec) for lp in layers]
-    job = _Job(layers, shells, settings, grounded, bases)
-    # every stage-2 task is queued after all the shells it waits for: no pool deadlock
-    staged = [pool.submit(job.layer, i) for i in range(len(layers))]
+    if procs is not None and len(layers) >= min_layers:
+        try:
+            shells, staged = _staged_in_processes(layers, settings, grounded, bases, procs)
+            job = _Job(layers, shells, settings, grounded, bases)
+        except BrokenProcessPool:  # a worker died (out of memory?): the threads do it
+            procs = None
+    if procs is None or len(layers) < min_layers:
+        spec = fill_spec(settings)
+        shells = [pool.submit(timed, shell, lp.region, spec) for lp in layers]
+        job = _Job(layers, shells, settings, grounded, bases)
+        # every stage-2 task is queued after all the shells it waits for: no pool deadlock
+        staged = [pool.submit(job.layer, i) for i in range(len(layers))]
     seconds = {"toolpaths": 0.0, "zones": 0.0}
     out, t = timed(_order_and_lift, index, job, staged, poses, seconds)
     seconds["toolpaths"] += t + sum(f.result()[1] for f in shells)

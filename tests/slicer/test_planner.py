@@ -2,6 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import functools
+import os
+from concurrent.futures import Executor
+from concurrent.futures.process import BrokenProcessPool
 from types import SimpleNamespace
 
 import manifold3d as m3
@@ -17,6 +22,7 @@ from slicer.planner import SlicingError, plan_planar, plan_print
 from slicer.printhead import Printhead
 from slicer.samples import to_trimesh
 from slicer.settings import ProcessSettings
+from slicer.subpart_paths import _staged_in_processes as REAL_STAGED
 
 S = ProcessSettings()
 G = MachineGeometry()
@@ -288,20 +294,53 @@ def test_solid_under_walls_between_turned_planes() -> None:
     assert foot.is_empty
 
 
-def test_plan_does_not_depend_on_the_thread_count(leaning, monkeypatch) -> None:
-    from slicer import planner
+class _BrokenPool(Executor):
+    """A process pool whose workers have died."""
 
-    plans = []
-    for threads in (1, 2):
-        monkeypatch.setattr(planner, "workers", lambda n=threads: n)
-        plans.append(plan_print(leaning, S, G, Printhead.default()))
-    pairs = [(a, b) for sa, sb in zip(*(p.subparts for p in plans), strict=True)
-             for la, lb in zip(sa.layers, sb.layers, strict=True)
-             for a, b in zip(la.paths, lb.paths, strict=True)]
-    assert pairs
-    for a, b in pairs:
-        assert a.kind == b.kind and a.closed == b.closed and a.width == b.width
-        assert np.array_equal(a.points, b.points) and np.array_equal(a.height, b.height)
+    def submit(self, fn, /, *args, **kwargs):  # type: ignore[no-untyped-def]
+        raise BrokenProcessPool("a worker died")
+
+
+def _plan_with(leaning, monkeypatch, threads: int, procs: str, chunked: list[int]) -> object:
+    """The leaning part planned on ``threads`` threads and with ``procs``: "none" (threads
+    only), "chunked" (every sub-part's stages 1-2 in forked processes, by chunks of layers)
+    or "broken" (a pool that fails: the threads take over). Layers of sub-parts sent to the
+    pool are added to ``chunked``."""
+    from slicer import planner, subpart_paths
+
+    def staged(layers, *args):  # type: ignore[no-untyped-def]
+        chunked.append(len(layers))
+        return REAL_STAGED(layers, *args)
+
+    monkeypatch.setattr(subpart_paths, "_staged_in_processes", staged)
+    monkeypatch.setattr(planner, "workers", lambda: threads)
+    pools = {"none": lambda longest: contextlib.nullcontext(None),
+             "chunked": lambda longest: subpart_paths.layer_processes(longest, min_layers=1),
+             "broken": lambda longest: contextlib.nullcontext(_BrokenPool())}
+    monkeypatch.setattr(planner, "layer_processes", pools[procs])
+    monkeypatch.setattr(planner, "build_layers",
+                        functools.partial(subpart_paths.build_layers, min_layers=1))
+    return plan_print(leaning, S, G, Printhead.default())
+
+
+def test_plan_does_not_depend_on_threads_or_processes(leaning, monkeypatch) -> None:
+    """Threads, worker processes by chunks of layers, or a broken pool: the same paths."""
+    if (os.cpu_count() or 1) < 2:
+        pytest.skip("worker processes need two cores")
+    runs = ((1, "none"), (2, "none"), (1, "chunked"), (2, "broken"))
+    chunked: dict[str, list[int]] = {procs: [] for _, procs in runs}
+    plans = [_plan_with(leaning, monkeypatch, t, procs, chunked[procs]) for t, procs in runs]
+    layers = sorted(len(sp.layers) for sp in plans[0].subparts)
+    assert chunked["none"] == [] and sorted(chunked["chunked"]) == layers
+    assert sorted(chunked["broken"]) == layers  # tried, then done on the threads
+    for other in plans[1:]:
+        pairs = [(a, b) for sa, sb in zip(plans[0].subparts, other.subparts, strict=True)
+                 for la, lb in zip(sa.layers, sb.layers, strict=True)
+                 for a, b in zip(la.paths, lb.paths, strict=True)]
+        assert pairs
+        for a, b in pairs:
+            assert a.kind == b.kind and a.closed == b.closed and a.width == b.width
+            assert np.array_equal(a.points, b.points) and np.array_equal(a.height, b.height)
 
 
 def test_inline_executor_delivers_results_and_errors() -> None:

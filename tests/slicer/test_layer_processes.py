@@ -1,0 +1,52 @@
+"""The slicer's worker processes (stages 1-2 of long sub-parts) never outlive it."""
+
+from __future__ import annotations
+
+import os
+import select
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+CHILD = textwrap.dedent("""
+    import os, sys
+    from slicer.subpart_paths import layer_processes
+
+    with layer_processes(10_000) as procs:
+        assert procs is not None
+        pids = {procs.submit(os.getpid).result() for _ in range(8)}
+        print(" ".join(map(str, sorted(pids))), flush=True)
+        sys.stdin.read()  # until killed
+""")
+
+
+def _gone_within(pid: int, seconds: float) -> bool:
+    """True once process ``pid`` has exited (waited on through a pidfd, no polling)."""
+    try:
+        fd = os.pidfd_open(pid)
+    except ProcessLookupError:
+        return True
+    try:
+        return bool(select.select([fd], [], [], seconds)[0])
+    finally:
+        os.close(fd)
+
+
+@pytest.mark.skipif(not hasattr(os, "pidfd_open") or (os.cpu_count() or 1) < 2,
+                    reason="Linux pidfds and two cores")
+def test_workers_die_with_a_killed_slicer() -> None:
+    proc = subprocess.Popen([sys.executable, "-c", CHILD], cwd=ROOT, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        workers = [int(p) for p in proc.stdout.readline().split()]
+        assert workers and proc.pid not in workers
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    assert all(_gone_within(pid, 20.0) for pid in workers)
