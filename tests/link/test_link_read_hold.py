@@ -18,8 +18,8 @@ from hostd.link import LinkSettings
 from hostd.link.read_hold import READ_HOLD_MARGIN_S, ReadHold
 from hostd.link.transport import DirectSerialTransport, LineReceiver, read_hold
 
-HOLD_S = 0.3  # long beside the test's own steps, so the grouping below is certain
-WIRE = b"G1 X1\n"  # at 0.1 s a byte (a 100-baud wire), 0.6 s on the wire: holds of HOLD_S
+HOLD_S = 1.0  # long beside the test's own steps, so the grouping below is certain
+WIRE = b"G1 X1\n"  # at 0.25 s a byte (a 40-baud wire), 1.5 s on the wire: holds of HOLD_S
 # (and with no gap learnt, span=0, the first reply already counts as quick)
 
 
@@ -78,7 +78,7 @@ async def open_held(board: Board, hold: bool) -> WatchedTransport:
     """The host end, with a line on a slow wire so that quick replies are held ``HOLD_S``."""
     port = serial.serial_for_url(board.path, baudrate=115200)
     receiver = LineReceiver()
-    policy = ReadHold(share=0.9, byte_s=0.1, hold_max=HOLD_S, span=0.0) if hold else None
+    policy = ReadHold(share=0.9, byte_s=0.25, hold_max=HOLD_S, span=0.0) if hold else None
     transport = WatchedTransport(asyncio.get_running_loop(), receiver, port, hold=policy)
     transport.rearmed = asyncio.Event()
     receiver.attach(board.on_lines, board.on_lost)
