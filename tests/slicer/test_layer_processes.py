@@ -44,6 +44,7 @@ def test_workers_die_with_a_killed_slicer() -> None:
                             stdout=subprocess.PIPE, text=True)
     try:
         assert proc.stdout is not None
+        assert select.select([proc.stdout], [], [], 60.0)[0], "the workers never answered"
         workers = [int(p) for p in proc.stdout.readline().split()]
         assert workers and proc.pid not in workers
     finally:
