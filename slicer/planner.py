@@ -329,8 +329,8 @@ def plan_planar(mesh: trimesh.Trimesh, settings: ProcessSettings,
     machine = _Machine(geometry, None, fixed=True)
     base = (np.array([0.0, 0.0, float(mesh.bounds[0][2])]), UP.copy(), True)
     layers, poses = _slice_subpart(0, mesh, base, settings, machine, timer)
-    with pool(workers()) as leaf:
-        plan_layers, seconds = build_layers(0, layers, poses, settings, True, [], leaf)
+    with pool(workers()) as leaf, layer_processes(len(layers)) as procs:
+        plan_layers, seconds = build_layers(0, layers, poses, settings, True, [], leaf, procs)
     timer.lap("paths")
     timer.laps.update({k: timer.laps.get(k, 0.0) + v for k, v in seconds.items()})
     sub = SubpartPlan(0, None, None, None, UP.copy(), plan_layers)

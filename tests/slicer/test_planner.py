@@ -334,13 +334,36 @@ def test_plan_does_not_depend_on_threads_or_processes(leaning, monkeypatch) -> N
     assert chunked["none"] == [] and sorted(chunked["chunked"]) == layers
     assert sorted(chunked["broken"]) == layers  # tried, then done on the threads
     for other in plans[1:]:
-        pairs = [(a, b) for sa, sb in zip(plans[0].subparts, other.subparts, strict=True)
-                 for la, lb in zip(sa.layers, sb.layers, strict=True)
-                 for a, b in zip(la.paths, lb.paths, strict=True)]
-        assert pairs
-        for a, b in pairs:
-            assert a.kind == b.kind and a.closed == b.closed and a.width == b.width
-            assert np.array_equal(a.points, b.points) and np.array_equal(a.height, b.height)
+        _assert_same_paths(plans[0], other)
+
+
+def _assert_same_paths(one, other) -> None:  # type: ignore[no-untyped-def]
+    pairs = [(a, b) for sa, sb in zip(one.subparts, other.subparts, strict=True)
+             for la, lb in zip(sa.layers, sb.layers, strict=True)
+             for a, b in zip(la.paths, lb.paths, strict=True)]
+    assert pairs
+    for a, b in pairs:
+        assert a.kind == b.kind and a.closed == b.closed and a.width == b.width
+        assert np.array_equal(a.points, b.points) and np.array_equal(a.height, b.height)
+
+
+def test_planar_plan_is_the_same_with_worker_processes(monkeypatch) -> None:
+    from slicer import planner, subpart_paths
+
+    if (os.cpu_count() or 1) < 2:
+        pytest.skip("worker processes need two cores")
+    mesh = to_trimesh(m3.Manifold.cylinder(10.0, 6.0, 6.0, 64))
+    monkeypatch.setattr(planner, "layer_processes", lambda n: contextlib.nullcontext(None))
+    threads = plan_planar(mesh, S, G)
+    chunked: list[int] = []
+    monkeypatch.setattr(planner, "layer_processes",
+                        lambda n: subpart_paths.layer_processes(n, min_layers=1))
+    monkeypatch.setattr(planner, "build_layers",
+                        functools.partial(subpart_paths.build_layers, min_layers=1))
+    monkeypatch.setattr(subpart_paths, "_staged_in_processes",
+                        lambda layers, *a: chunked.append(len(layers)) or REAL_STAGED(layers, *a))
+    _assert_same_paths(threads, plan_planar(mesh, S, G))
+    assert chunked == [50]
 
 
 def test_inline_executor_delivers_results_and_errors() -> None:
