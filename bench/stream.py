@@ -54,7 +54,8 @@ def five_axis_job(n: int) -> list[str]:
 
 
 async def run_case(baud: int, buffer: int, mode: str, lines: list[str],
-                   partial: bool = True) -> dict[str, float]:
+                   partial: bool = True, read_hold: float = LinkSettings.read_hold
+                   ) -> dict[str, float]:
     """Stream ``lines`` once; return the measured figures.
 
     ``mode``: ``pingpong``, ``window`` (byte credit of the receive buffer) or ``window+aok``
@@ -73,7 +74,7 @@ async def run_case(baud: int, buffer: int, mode: str, lines: list[str],
         path = (await proc.stdout.readline()).decode().strip()
         link = SerialLink(LinkSettings(port=path, baud=baud, flow_control=flow,
                                        rx_buffer_bytes=buffer, partial_lines=partial,
-                                       read_hold=HOLD[0], ok_timeout=5.0))
+                                       read_hold=read_hold, ok_timeout=5.0))
         await link.connect()
         cpu0, t0 = time.process_time(), time.perf_counter()
         sent0 = link.status()["lines_sent"]
@@ -118,25 +119,26 @@ def sliced_job(n: int) -> list[str]:
     return cmds[len(cmds) // 3:len(cmds) // 3 + n]  # mid-print: layers, not the start script
 
 
-HOLD = [LinkSettings.read_hold]  # serial.read_hold, from --read-hold
 JOBS = {"sliced": sliced_job, "planar": planar_job, "five-axis": five_axis_job}
 
 
-async def main(n: int, jobs: list[str], repeat: int, partial: bool) -> None:
-    print(f"partial lines: {'on' if partial else 'off'}; read hold {HOLD[0]:g}; "
+async def main(n: int, jobs: list[str], repeat: int, partial: bool, hold: float) -> None:
+    print(f"partial lines: {'on' if partial else 'off'}; read hold {hold:g}; "
           f"best of {repeat}")
     print(f"{'job':>9} {'baud':>7} {'buffer':>6} {'mode':>10} {'lines/s':>8} {'bytes/s':>8} "
           f"{'wire %':>6} {'resent':>6} {'split':>5} {'cpu s/1000':>10}")
     for job in jobs:
-        await run_job(job, JOBS[job](n), repeat, partial)
+        await run_job(job, JOBS[job](n), repeat, partial, hold)
 
 
-async def run_job(job: str, lines: list[str], repeat: int, partial: bool) -> None:
+async def run_job(job: str, lines: list[str], repeat: int, partial: bool,
+                  hold: float) -> None:
     """Every baud rate, buffer size and mode for one job."""
     for baud in (115200, 250000):
         for buffer in (127, 63):
             for flow in ("pingpong", "window", "window+aok"):
-                runs = [await run_case(baud, buffer, flow, lines, partial) for _ in range(repeat)]
+                runs = [await run_case(baud, buffer, flow, lines, partial, hold)
+                        for _ in range(repeat)]
                 assert all(r["acked"] == len(lines) for r in runs)
                 r = max(runs, key=lambda run: run["share"])
                 cpu = min(run["cpu_per_1000"] for run in runs)
@@ -159,5 +161,5 @@ if __name__ == "__main__":
                              "the port is left unread while oks arrive quickly (0: each at "
                              "once)")
     args = parser.parse_args()
-    HOLD[0] = args.read_hold
-    asyncio.run(main(args.lines, args.job or list(JOBS), args.repeat, args.partial_lines))
+    asyncio.run(main(args.lines, args.job or list(JOBS), args.repeat, args.partial_lines,
+                     args.read_hold))

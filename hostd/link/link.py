@@ -91,7 +91,7 @@ class SerialLink:
         self._loop = asyncio.get_running_loop()
         conn = self.connection = await self._opener(self.settings, self.emulator_settings)
         conn.receiver.attach(self._on_lines, lambda reason: self._on_lost(conn, reason))
-        self._handshake = asyncio.get_running_loop().create_future()
+        self._handshake = self._loop.create_future()
         self._apply(self.protocol.start(self._now()))
         await self._handshake
 
