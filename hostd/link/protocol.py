@@ -440,12 +440,15 @@ class Protocol:
             self._forget(line)
 
     def _answer_queries(self, first: int, line: int, ok: Ok) -> None:
-        """An :class:`Answer` for each query among lines ``first`` .. ``line``; the replies
-        since the last ``ok`` go to the one executed last."""
+        """An :class:`Answer` for each query among lines ``first`` .. ``line``.
+
+        One ``ok`` executed them all, so which reply since the last ``ok`` answered which
+        query is unknown: each gets them all and the ``ok`` (a query's ``ok T:`` can arrive
+        after a timeout's nudge was sent, and then executes the nudge's line too)."""
+        replies = (*self._since_ok, ok)
         for number in range(first, line + 1):
             item = self._history.get(number)
             if item is not None and item.kind == "query" and item.seq is not None:
-                replies = (*self._since_ok, ok) if number == line else ()
                 self._out.append(Answer(item.seq, replies))
 
     def _advance_ack(self, first: int, line: int) -> None:

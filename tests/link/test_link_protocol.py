@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hostd.link.actions import Acked, Action, Connected, Failed, Write
+from hostd.link.actions import Acked, Action, Answer, Connected, Failed, Write
 from hostd.link.errors import (
     EmergencyStop,
     FirmwareHalted,
@@ -126,6 +126,19 @@ def test_m105_answer_is_a_barrier_after_a_timeout() -> None:
     nudge = writes(p.tick(1.0))
     assert nudge == ["N3 M105*36"]
     assert acks(p.receive("ok T:20.0 /0.0 B:20.0 /0.0", 1.1)) == [2]
+
+
+def test_a_late_query_answer_after_the_nudge_still_answers_the_query() -> None:
+    """An ``M105`` query's ``ok T:`` arriving after the timeout's nudge went out executes
+    the nudge's line too: the query is answered with the temperatures, not with nothing."""
+    p = ready(ok_timeout=1.0)
+    seq, _ = p.submit("M105", 0.0, kind="query")
+    assert writes(p.tick(1.0)) == ["N2 M105*37"]
+    out = p.receive("ok T:21.5 /0.0 B:20.0 /0.0", 1.1)
+    answers = [a for a in out if isinstance(a, Answer)]
+    assert [a.line for a in answers] == [seq] and acks(out) == [seq]
+    temps = [r.temperatures for r in answers[0].replies if hasattr(r, "temperatures")]
+    assert temps and temps[-1] is not None and temps[-1].heaters["T"].actual == 21.5
 
 
 def test_no_answer_to_the_nudge_loses_the_link() -> None:
