@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterable, Iterator, Sequence
+from concurrent.futures import Executor, Future
 from dataclasses import asdict, dataclass, field
 from pathlib import Path as FsPath
 
@@ -49,29 +50,39 @@ class MachineSetup:
 
 @dataclass
 class GcodeResult:
-    """The formatted file and what was computed on the way.
+    """The file and what was computed on the way.
 
     Attributes
     ----------
-    lines : list of str
+    header : list of str
+        The ``;HOSTD_*`` header lines.
     estimate : Estimate
     transitions : list of dict
         One record per sub-part transition: from, to, a, c, x, y, z, safe_z.
+    program : Program
+        Everything after the header, moves as numeric blocks.
     """
 
-    lines: list[str]
+    header: list[str]
     estimate: Estimate
     transitions: list[dict[str, object]]
-    header: int = 0
-    program: Program | None = None
+    program: Program
+    _text: Future[list[str]] | None = field(default=None, repr=False)
+    _lines: list[str] | None = field(default=None, repr=False)
+
+    @property
+    def lines(self) -> list[str]:
+        """The whole file as lines (no newlines); formatted on first use, or by the
+        executor handed to :func:`generate`."""
+        if self._lines is None:
+            body = self._text.result() if self._text is not None else self.program.lines()
+            self._lines = [*self.header, *body]
+        return self._lines
 
     def words(self) -> Iterator[str | MoveWords]:
         """The file as raw lines and numeric move blocks (for
-        :func:`slicer.gcode_reader.parse_words`)."""
-        if self.program is None:
-            yield from self.lines
-            return
-        yield from self.lines[:self.header]
+        :func:`slicer.gcode_reader.parse_words`); needs no formatting."""
+        yield from self.header
         yield from self.program.words()
 
 
@@ -298,16 +309,21 @@ def build_program(plan: PrintPlan, settings: ProcessSettings,
 
 
 def generate(plan: PrintPlan, settings: ProcessSettings,
-             machine: MachineSetup | None = None) -> GcodeResult:
-    """The whole file: headers, start G-code, sub-parts with transitions, end G-code."""
+             machine: MachineSetup | None = None, formatter: Executor | None = None
+             ) -> GcodeResult:
+    """The whole file: headers, start G-code, sub-parts with transitions, end G-code.
+
+    With ``formatter``, the move lines are formatted there while the caller goes on (a
+    replay reads :meth:`GcodeResult.words`, which needs no text); else on first use of
+    :attr:`GcodeResult.lines`.
+    """
     machine = machine or MachineSetup()
     prog, transitions, _ = build_program(plan, settings, machine)
     limits = MotionLimits.from_settings(settings)
     estimate = estimate_program(prog.blocks(), limits, filament_area(settings), PLA_DENSITY)
-    lines = header_lines(settings, machine, plan.placement, estimate)
-    header = len(lines)
-    lines.extend(prog.lines())
-    return GcodeResult(lines, estimate, transitions, header, prog)
+    header = header_lines(settings, machine, plan.placement, estimate)
+    text = formatter.submit(prog.lines) if formatter is not None else None
+    return GcodeResult(header, estimate, transitions, prog, text)
 
 
 def gcode_lines(plan: PrintPlan, settings: ProcessSettings,

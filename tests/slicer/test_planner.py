@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
-from concurrent.futures import Executor
+from concurrent.futures import Executor, Future
 from concurrent.futures.process import BrokenProcessPool
 from types import SimpleNamespace
 
@@ -301,11 +301,28 @@ class _BrokenPool(Executor):
         raise BrokenProcessPool("a worker died")
 
 
+class _DyingPool(Executor):
+    """A process pool whose worker dies on every second chunk: stage 3 has been through
+    the first chunk's layers when it meets the failure."""
+
+    def __init__(self) -> None:
+        self.chunks = 0
+
+    def submit(self, fn, /, *args, **kwargs):  # type: ignore[no-untyped-def]
+        self.chunks += 1
+        out: Future = Future()
+        if self.chunks % 2 == 0:
+            out.set_exception(BrokenProcessPool("a worker died"))
+        else:
+            out.set_result(fn(*args, **kwargs))
+        return out
+
+
 def _plan_with(leaning, monkeypatch, threads: int, procs: str, chunked: list[int]) -> object:
     """The leaning part planned on ``threads`` threads and with ``procs``: "none" (threads
     only), "chunked" (every sub-part's stages 1-2 in forked processes, by chunks of layers)
-    or "broken" (a pool that fails: the threads take over). Layers of sub-parts sent to the
-    pool are added to ``chunked``."""
+    or "broken" / "dies" (a pool that fails at once or in the middle: the threads take
+    over). Layers of sub-parts sent to the pool are added to ``chunked``."""
     from slicer import planner, subpart_paths
 
     def staged(layers, *args):  # type: ignore[no-untyped-def]
@@ -316,7 +333,8 @@ def _plan_with(leaning, monkeypatch, threads: int, procs: str, chunked: list[int
     monkeypatch.setattr(planner, "workers", lambda: threads)
     pools = {"none": lambda longest: contextlib.nullcontext(None),
              "chunked": lambda longest: subpart_paths.layer_processes(longest, min_layers=1),
-             "broken": lambda longest: contextlib.nullcontext(_BrokenPool())}
+             "broken": lambda longest: contextlib.nullcontext(_BrokenPool()),
+             "dies": lambda longest: contextlib.nullcontext(_DyingPool())}
     monkeypatch.setattr(planner, "layer_processes", pools[procs])
     monkeypatch.setattr(planner, "build_layers",
                         functools.partial(subpart_paths.build_layers, min_layers=1))
@@ -327,12 +345,13 @@ def test_plan_does_not_depend_on_threads_or_processes(leaning, monkeypatch) -> N
     """Threads, worker processes by chunks of layers, or a broken pool: the same paths."""
     if (os.cpu_count() or 1) < 2:
         pytest.skip("worker processes need two cores")
-    runs = ((1, "none"), (2, "none"), (1, "chunked"), (2, "broken"))
+    runs = ((1, "none"), (2, "none"), (1, "chunked"), (2, "broken"), (1, "dies"))
     chunked: dict[str, list[int]] = {procs: [] for _, procs in runs}
     plans = [_plan_with(leaning, monkeypatch, t, procs, chunked[procs]) for t, procs in runs]
     layers = sorted(len(sp.layers) for sp in plans[0].subparts)
     assert chunked["none"] == [] and sorted(chunked["chunked"]) == layers
     assert sorted(chunked["broken"]) == layers  # tried, then done on the threads
+    assert sorted(chunked["dies"]) == layers
     for other in plans[1:]:
         _assert_same_paths(plans[0], other)
 
