@@ -50,7 +50,8 @@ class SliceResult:
         :class:`~slicer.replay.ReplayReport` as a dict.
     transitions : list of dict
     timings : dict of str to float
-        Seconds per stage.
+        Seconds per stage: load, plan (``plan.*``: its parts), gcode, read, replay, format
+        (the wait for the text after the replay: it is formatted beside read and replay).
     seconds : float
         Wall time of the whole call.
     """
@@ -165,7 +166,7 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
         report = _check(mesh, res, setup, index, timings) if index is not None else {}
         t1 = time.perf_counter()
         lines = res.lines
-        timings["text"] = time.perf_counter() - t1
+        timings["format"] = time.perf_counter() - t1
     return SliceResult(lines, len(plan.subparts),
                        sum(len(sp.layers) for sp in plan.subparts), _thickness(plan),
                        res.estimate.header(), report, res.transitions,
