@@ -98,16 +98,22 @@ def layer_processes(longest: int, min_layers: int = CHUNK_MIN_LAYERS
 
     The workers are forked at once, in the caller's thread (a fork copies only the thread
     that makes it: forking here, not from a thread that submits work later while the caller
-    runs on, leaves no lock in the child held by a thread it does not have).
+    runs on, leaves no lock in the child held by a thread it does not have). When the caller
+    fails (a later sub-part has no plane), the chunks not yet started are dropped.
     """
     n = _processes()
     if n < 2 or longest < min_layers:
         yield None
         return
-    with ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"),
-                             initializer=die_with_parent, initargs=(os.getpid(),)) as procs:
+    procs = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"),
+                                initializer=die_with_parent, initargs=(os.getpid(),))
+    try:
         procs.submit(os.getpid)  # with "fork", the first submission starts every worker
         yield procs
+    except BaseException:
+        procs.shutdown(wait=True, cancel_futures=True)
+        raise
+    procs.shutdown(wait=True)
 
 
 def die_with_parent(parent: int) -> None:

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -51,3 +52,18 @@ def test_workers_die_with_a_killed_slicer() -> None:
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=30)
     assert all(_gone_within(pid, 20.0) for pid in workers)
+
+
+@pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="worker processes need two cores")
+def test_a_failing_slicer_drops_the_chunks_not_started() -> None:
+    """An error while the workers have work queued (a later sub-part with no plane) leaves
+    at once: the queued chunks are cancelled, not computed first."""
+    from slicer.subpart_paths import layer_processes
+
+    queued = []
+    with pytest.raises(RuntimeError, match="no plane"), layer_processes(1, min_layers=1) as procs:
+        assert procs is not None
+        queued = [procs.submit(time.sleep, 0.2) for _ in range(40)]
+        raise RuntimeError("no plane")
+    assert all(f.done() for f in queued)
+    assert sum(f.cancelled() for f in queued) >= 30
