@@ -7,9 +7,8 @@ Each model and layer height is sliced five-axis (decompose, plan, G-code, read, 
 planar (A = C = 0, no decomposition). Printed: seconds per stage, total wall and CPU time,
 filament and time of both prints and the decrement (the paper's Table 1). Target: pipe3-50k
 at 0.2 mm in under 10 s. On a shared machine the wall time also measures the neighbours, so
-the CPU time (with the worker processes') is printed beside it. ``paths`` is the part of
-``plan`` spent waiting for toolpaths after the last sub-part is marched (each sub-part's are
-built while the next ones are marched).
+the CPU time (with the worker processes') is printed beside it. ``paths`` is the toolpath
+part of ``plan``.
 """
 
 from __future__ import annotations

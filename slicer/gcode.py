@@ -14,7 +14,6 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterable, Iterator, Sequence
-from concurrent.futures import Executor, Future
 from dataclasses import asdict, dataclass, field
 from pathlib import Path as FsPath
 
@@ -50,39 +49,29 @@ class MachineSetup:
 
 @dataclass
 class GcodeResult:
-    """The file and what was computed on the way.
+    """The formatted file and what was computed on the way.
 
     Attributes
     ----------
-    header : list of str
-        The ``;HOSTD_*`` header lines.
+    lines : list of str
     estimate : Estimate
     transitions : list of dict
         One record per sub-part transition: from, to, a, c, x, y, z, safe_z.
-    program : Program
-        Everything after the header, moves as numeric blocks.
     """
 
-    header: list[str]
+    lines: list[str]
     estimate: Estimate
     transitions: list[dict[str, object]]
-    program: Program
-    _text: Future[list[str]] | None = field(default=None, repr=False)
-    _lines: list[str] | None = field(default=None, repr=False)
-
-    @property
-    def lines(self) -> list[str]:
-        """The whole file as lines (no newlines); formatted on first use, or by the
-        executor handed to :func:`generate`."""
-        if self._lines is None:
-            body = self._text.result() if self._text is not None else self.program.lines()
-            self._lines = [*self.header, *body]
-        return self._lines
+    header: int = 0
+    program: Program | None = None
 
     def words(self) -> Iterator[str | MoveWords]:
         """The file as raw lines and numeric move blocks (for
-        :func:`slicer.gcode_reader.parse_words`); needs no formatting."""
-        yield from self.header
+        :func:`slicer.gcode_reader.parse_words`)."""
+        if self.program is None:
+            yield from self.lines
+            return
+        yield from self.lines[:self.header]
         yield from self.program.words()
 
 
@@ -309,21 +298,16 @@ def build_program(plan: PrintPlan, settings: ProcessSettings,
 
 
 def generate(plan: PrintPlan, settings: ProcessSettings,
-             machine: MachineSetup | None = None, formatter: Executor | None = None
-             ) -> GcodeResult:
-    """The whole file: headers, start G-code, sub-parts with transitions, end G-code.
-
-    With ``formatter``, the move lines are formatted there while the caller goes on (a
-    replay reads :meth:`GcodeResult.words`, which needs no text); else on first use of
-    :attr:`GcodeResult.lines`.
-    """
+             machine: MachineSetup | None = None) -> GcodeResult:
+    """The whole file: headers, start G-code, sub-parts with transitions, end G-code."""
     machine = machine or MachineSetup()
     prog, transitions, _ = build_program(plan, settings, machine)
     limits = MotionLimits.from_settings(settings)
     estimate = estimate_program(prog.blocks(), limits, filament_area(settings), PLA_DENSITY)
-    header = header_lines(settings, machine, plan.placement, estimate)
-    text = formatter.submit(prog.lines) if formatter is not None else None
-    return GcodeResult(header, estimate, transitions, prog, text)
+    lines = header_lines(settings, machine, plan.placement, estimate)
+    header = len(lines)
+    lines.extend(prog.lines())
+    return GcodeResult(lines, estimate, transitions, header, prog)
 
 
 def gcode_lines(plan: PrintPlan, settings: ProcessSettings,

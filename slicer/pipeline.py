@@ -16,7 +16,7 @@ import numpy as np
 import trimesh
 
 from kinematics.machine import MachineGeometry
-from slicer.gcode import GcodeResult, MachineSetup, generate
+from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import parse_words
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
@@ -50,8 +50,7 @@ class SliceResult:
         :class:`~slicer.replay.ReplayReport` as a dict.
     transitions : list of dict
     timings : dict of str to float
-        Seconds per stage: load, plan (``plan.*``: its parts), gcode, read, replay, format
-        (the wait for the text after the replay: it is formatted beside read and replay).
+        Seconds per stage.
     seconds : float
         Wall time of the whole call.
     """
@@ -158,34 +157,25 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
             setup: MachineSetup, index: Future[ModelIndex] | None, timings: dict[str, float],
             t0: float, keep_plan: bool) -> SliceResult:
     """G-code for ``plan`` and, when ``index`` is given, its replay check."""
-    with ThreadPoolExecutor(1, "gcode-text") as text:
-        # the text is formatted on a thread while the program is read back and replayed
+    t1 = time.perf_counter()
+    res = generate(plan, settings, setup)
+    timings["gcode"] = time.perf_counter() - t1
+    report: dict[str, object] = {}
+    if index is not None:
         t1 = time.perf_counter()
-        res = generate(plan, settings, setup, text)
-        timings["gcode"] = time.perf_counter() - t1
-        report = _check(mesh, res, setup, index, timings) if index is not None else {}
+        parsed = parse_words(res.words())
+        timings["read"] = time.perf_counter() - t1
         t1 = time.perf_counter()
-        lines = res.lines
-        timings["format"] = time.perf_counter() - t1
-    return SliceResult(lines, len(plan.subparts),
+        rep = replay_check(parsed, mesh, setup.head, setup.platform_radius, placed=True,
+                           index=index.result())
+        timings["replay"] = time.perf_counter() - t1
+        report = rep.to_dict()
+        if not rep.ok:
+            first = rep.collision_messages[0] if rep.collision_messages else ""
+            raise CollisionError(f"replay found {rep.collisions} head collision(s); refusing "
+                                 f"to write the file: {first}")
+    return SliceResult(res.lines, len(plan.subparts),
                        sum(len(sp.layers) for sp in plan.subparts), _thickness(plan),
                        res.estimate.header(), report, res.transitions,
                        {**{f"plan.{k}": v for k, v in plan.timings.items()}, **timings},
                        time.perf_counter() - t0, plan if keep_plan else None)
-
-
-def _check(mesh: trimesh.Trimesh, res: GcodeResult, setup: MachineSetup,
-           index: Future[ModelIndex], timings: dict[str, float]) -> dict[str, object]:
-    """The replay report of ``res``; raises :class:`CollisionError` when the head hits."""
-    t1 = time.perf_counter()
-    parsed = parse_words(res.words())
-    timings["read"] = time.perf_counter() - t1
-    t1 = time.perf_counter()
-    rep = replay_check(parsed, mesh, setup.head, setup.platform_radius, placed=True,
-                       index=index.result())
-    timings["replay"] = time.perf_counter() - t1
-    if not rep.ok:
-        first = rep.collision_messages[0] if rep.collision_messages else ""
-        raise CollisionError(f"replay found {rep.collisions} head collision(s); refusing "
-                             f"to write the file: {first}")
-    return rep.to_dict()

@@ -13,9 +13,8 @@ the quadrant); here every layer has its own A/C from the two-solution solver.
 
 from __future__ import annotations
 
-import contextlib
 import time
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 
 import manifold3d as m3
@@ -273,44 +272,34 @@ def plan_print(decomposition, settings: ProcessSettings, geometry: MachineGeomet
     timer = _Timer()
     machine = _Machine(geometry, head)
     subs = {s.index: s for s in decomposition.subparts}
+    t = settings.layer_height
+    marched = []
+    for k in decomposition.order:  # marching reads the printed state: in build order
+        sp = subs[k]
+        base = _base_of(sp)
+        layers, poses = _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings,
+                                       machine, timer)
+        kids = [_child_base(c.index, c.mesh, c.base_plane.point, c.base_plane.normal, t)
+                for c in decomposition.subparts if c.parent == k and c.base_plane is not None]
+        timer.lap("sections")
+        marched.append((sp, base, layers, poses, kids))
+        machine.parts = np.vstack([machine.parts, _surface_samples(sp.mesh, OBSTACLE_SPACING)])
+        timer.lap("obstacles")
     threads = workers()
-    with pool(threads) as leaf, pool(threads) as builder, contextlib.ExitStack() as stack:
-        procs: ProcessPoolExecutor | None = None
-        started: list[tuple[object, tuple[np.ndarray, np.ndarray], Future]] = []
-        for k in decomposition.order:  # marching reads the printed state: in build order
-            sp = subs[k]
-            layers, poses, kids = _march_subpart(sp, settings, machine, timer, subs)
-            if procs is None:  # forked at the first sub-part long enough to use them
-                procs = stack.enter_context(layer_processes(len(layers)))
-            # its toolpaths are built while the sub-parts after it are marched
-            started.append((sp, _base_of(sp), builder.submit(
-                build_layers, sp.index, layers, poses, settings, sp.parent is None, kids,
-                leaf, procs)))
+    longest = max((len(layers) for _, _, layers, _, _ in marched), default=0)
+    with pool(threads) as leaf, pool(min(threads, len(marched))) as builder, \
+            layer_processes(longest) as procs:
+        jobs = [builder.submit(build_layers, sp.index, layers, poses, settings,
+                               sp.parent is None, kids, leaf, procs)
+                for sp, _, layers, poses, kids in marched]
         plans = [SubpartPlan(sp.index, sp.parent, None if sp.parent is None else base[0],
                              None if sp.parent is None else base[1],
                              np.asarray(sp.build_direction, dtype=float), _built(job, timer))
-                 for sp, base, job in started]
+                 for (sp, base, *_), job in zip(marched, jobs, strict=True)]
     timer.lap("paths")
     volume = float(getattr(decomposition, "volume", sum(s.mesh.volume for s in subs.values())))
     return PrintPlan(np.asarray(decomposition.placement, dtype=float), plans, volume,
                      dict(timer.laps))
-
-
-def _march_subpart(sp, settings: ProcessSettings, machine: _Machine, timer: _Timer,
-                   subs: dict) -> tuple[list[LayerPlane], list[tuple[float, float]],
-                                        list[ChildBase]]:
-    """March sub-part ``sp`` (its layers, their (A, C) and its children's bases) and add it
-    to the printed obstacles."""
-    base = _base_of(sp)
-    layers, poses = _slice_subpart(sp.index, sp.mesh, (*base, sp.parent is None), settings,
-                                   machine, timer)
-    t = settings.layer_height
-    kids = [_child_base(c.index, c.mesh, c.base_plane.point, c.base_plane.normal, t)
-            for c in subs.values() if c.parent == sp.index and c.base_plane is not None]
-    timer.lap("sections")
-    machine.parts = np.vstack([machine.parts, _surface_samples(sp.mesh, OBSTACLE_SPACING)])
-    timer.lap("obstacles")
-    return layers, poses, kids
 
 
 def _built(job: Future, timer: _Timer) -> list[Layer]:

@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import functools
 import itertools
 import multiprocessing
 import os
@@ -43,7 +42,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import numpy as np
 import shapely
@@ -97,9 +96,9 @@ def layer_processes(longest: int, min_layers: int = CHUNK_MIN_LAYERS
     of ``longest`` layers reaches ``min_layers`` and there are two cores; else ``None``.
 
     The workers are forked at once, in the caller's thread (a fork copies only the thread
-    that makes it: forking here, not from a thread that submits work later while the caller
-    runs on, leaves no lock in the child held by a thread it does not have). When the caller
-    fails (a later sub-part has no plane), the chunks not yet started are dropped.
+    that makes it: forking here, not from a builder thread at its first submission while
+    other threads run, leaves no lock in the child held by a thread it does not have). When
+    the caller fails, the chunks not yet started are dropped.
     """
     n = _processes()
     if n < 2 or longest < min_layers:
@@ -246,30 +245,19 @@ def _staged_in_processes(layers: list[LayerPlane], settings: ProcessSettings, gr
                          bases: list[ChildBase], procs: ProcessPoolExecutor
                          ) -> tuple[list[Future[tuple[Shell, float]]],
                                     list[Future[tuple[_Zones, float, float]]]]:
-    """Stages 1 and 2 of every layer, by chunks in ``procs``: a layer's futures are done
-    when its chunk is (so stage 3 starts on the first chunk while the others run)."""
+    """Stages 1 and 2 of every layer, by chunks in ``procs``, as completed futures."""
     n = len(layers)
     k = min(n, CHUNKS_PER_PROCESS * _processes())
     bounds = [n * j // k for j in range(k + 1)]
-    shells: list[Future[tuple[Shell, float]]] = [Future() for _ in range(n)]
-    staged: list[Future[tuple[_Zones, float, float]]] = [Future() for _ in range(n)]
-    for lo, hi in itertools.pairwise(bounds):
-        chunk = procs.submit(chunk_stages, layers, settings, grounded, bases, lo, hi)
-        chunk.add_done_callback(functools.partial(_deliver, shells[lo:hi], staged[lo:hi]))
-    return shells, staged
-
-
-def _deliver(shells: list[Future[Any]], staged: list[Future[Any]], chunk: Future[Any]
-             ) -> None:
-    """Hand a finished chunk's results (or its error) to its layers' futures."""
-    try:
+    chunks = [procs.submit(chunk_stages, layers, settings, grounded, bases, lo, hi)
+              for lo, hi in itertools.pairwise(bounds)]
+    shells: list[Future[tuple[Shell, float]]] = []
+    staged: list[Future[tuple[_Zones, float, float]]] = []
+    for chunk in chunks:
         sh, st = chunk.result()
-    except Exception as exc:  # a broken pool, or the chunk's own error: each layer re-raises it
-        for f in (*shells, *staged):
-            f.set_exception(exc)
-        return
-    for f, value in zip((*shells, *staged), (*sh, *st), strict=True):
-        f.set_result(value)
+        shells += map(_done, sh)
+        staged += map(_done, st)
+    return shells, staged
 
 
 def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, float]],
@@ -303,26 +291,16 @@ def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, 
     """
     if procs is not None and len(layers) >= min_layers:
         try:
-            return _stage3(index, layers, poses, settings, grounded, bases,
-                           _staged_in_processes(layers, settings, grounded, bases, procs))
+            shells, staged = _staged_in_processes(layers, settings, grounded, bases, procs)
+            job = _Job(layers, shells, settings, grounded, bases)
         except BrokenProcessPool:  # a worker died (out of memory?): the threads do it
-            pass
-    spec = fill_spec(settings)
-    shells = [pool.submit(timed, shell, lp.region, spec) for lp in layers]
-    job = _Job(layers, shells, settings, grounded, bases)
-    # every stage-2 task is queued after all the shells it waits for: no pool deadlock
-    staged = [pool.submit(job.layer, i) for i in range(len(layers))]
-    return _stage3(index, layers, poses, settings, grounded, bases, (shells, staged))
-
-
-def _stage3(index: int, layers: list[LayerPlane], poses: list[tuple[float, float]],
-            settings: ProcessSettings, grounded: bool, bases: list[ChildBase],
-            futures: tuple[list[Future[tuple[Shell, float]]],
-                           list[Future[tuple[_Zones, float, float]]]]
-            ) -> tuple[list[Layer], dict[str, float]]:
-    """:func:`build_layers` once stages 1 and 2 are under way (``futures``: shells, zones)."""
-    shells, staged = futures
-    job = _Job(layers, shells, settings, grounded, bases)
+            procs = None
+    if procs is None or len(layers) < min_layers:
+        spec = fill_spec(settings)
+        shells = [pool.submit(timed, shell, lp.region, spec) for lp in layers]
+        job = _Job(layers, shells, settings, grounded, bases)
+        # every stage-2 task is queued after all the shells it waits for: no pool deadlock
+        staged = [pool.submit(job.layer, i) for i in range(len(layers))]
     seconds = {"toolpaths": 0.0, "zones": 0.0}
     out, t = timed(_order_and_lift, index, job, staged, poses, seconds)
     seconds["toolpaths"] += t + sum(f.result()[1] for f in shells)

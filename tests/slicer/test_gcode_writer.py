@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -196,15 +195,6 @@ def test_numeric_moves_parse_as_their_text(start):
     plan, _ = _clean_two_part()
     res = generate(plan, s, MachineSetup(GEO))
     _same_parse(parse_lines(res.lines), parse_words(res.words()))
-
-
-def test_text_formatted_on_an_executor_is_the_same_file():
-    s = ProcessSettings()
-    plan, _ = _clean_two_part()
-    with ThreadPoolExecutor(1) as text:
-        res = generate(plan, s, MachineSetup(GEO), text)
-        assert res.lines == generate(plan, s, MachineSetup(GEO)).lines
-    assert res.lines[0].startswith(";HOSTD_KINEMATICS") and len(res.lines) > len(res.header)
 
 
 def test_bulk_move_text_is_the_percent_format_of_each_word():

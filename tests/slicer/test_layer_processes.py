@@ -56,7 +56,7 @@ def test_workers_die_with_a_killed_slicer() -> None:
 
 @pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="worker processes need two cores")
 def test_a_failing_slicer_drops_the_chunks_not_started() -> None:
-    """An error while the workers have work queued (a later sub-part with no plane) leaves
+    """An error while the workers have work queued (a sub-part whose stage 3 fails) leaves
     at once: the queued chunks are cancelled, not computed first."""
     from slicer.subpart_paths import layer_processes
 
