@@ -46,7 +46,8 @@ acts only on complete lines, so nothing else goes on the wire until the line is 
   rejected like every other line of the old epoch, and its ``Resend`` is a duplicate;
 - no ``ok`` can be for it or a later line, nor can ``ok N.. B..`` show it read out, until it
   is whole;
-- a timeout releases all credit: the rest goes out, then the ``M105`` nudge;
+- a timeout releases all credit: the rest goes out, then the ``M105`` nudge (an ``M105``
+  going out in parts is answered before the nudge, so the first ``ok T:`` is its own);
 - ``M112`` goes out right after the rest of the line. Ending the line early with a newline
   would be a byte or two faster, but it puts a truncated line in front of the firmware and
   relies on every dialect rejecting it (Marlin does: a prefix of a numbered line has no
@@ -327,7 +328,7 @@ class Protocol:
             self.counters.lines_split += 1
         self._out.append(Write(data))
         self._inflight.add(sent)
-        if item.command.startswith(NUDGE) and item.command[4:5] in ("", " "):
+        if _is_m105(item.command):
             self._m105.append(number)
         if item.kind == "handshake":
             return sent.written
@@ -585,9 +586,14 @@ class Protocol:
         # The firmware has been quiet for a whole timeout: it has answered whatever it was
         # going to answer, or the answers are lost. Its buffer is empty, so the lines in
         # flight no longer hold credit. A line being resent is the tickle it waits for;
-        # otherwise a numbered M105, whose ``ok T:`` also resynchronises the ok count.
+        # otherwise a numbered M105, whose ``ok T:`` also resynchronises the ok count. The
+        # line going out in parts is the exception: the firmware has not had it whole, so
+        # its answer is still to come, and if it is an M105 its ``ok T:`` is the first.
         self._inflight.uncount()
+        partial = self._partial
         self._m105.clear()
+        if partial is not None and _is_m105(partial.item.command):
+            self._m105.append(partial.number)
         self._finish_partial()
         if not self._resend:
             self._transmit(Item(NUDGE, None, "nudge"), now)
@@ -596,3 +602,8 @@ class Protocol:
         Ok: _on_ok, Resend: _on_resend, ErrorReply: _on_error, Busy: _on_busy,
         Wait: _on_wait, Halted: _on_halted, Banner: _on_banner,
     }
+
+
+def _is_m105(command: str) -> bool:
+    """Whether ``command`` is an ``M105`` (answered by ``ok T:…``)."""
+    return command.startswith(NUDGE) and command[4:5] in ("", " ")

@@ -100,8 +100,11 @@ class VirtualBench:
         return self.protocol.state == "ready"
 
     def stream(self, commands: list[str], ahead: int = 64, max_time: float = 1e7,
-               emergency_at: int | None = None) -> Outcome:
-        """Submit ``commands`` keeping ``ahead`` unacknowledged; run until done or failed."""
+               emergency_at: int | None = None, queries: tuple[str, ...] = ()) -> Outcome:
+        """Submit ``commands`` keeping ``ahead`` unacknowledged; run until done or failed.
+
+        Commands starting with one of ``queries`` go as queries (answered in
+        ``outcome.answers``)."""
         self._base = len(job_log(self.firmware)) - self.protocol.last_acked
         self._log_seen = len(self.firmware.log)
         self._jobs_done = len(job_log(self.firmware))
@@ -111,7 +114,9 @@ class VirtualBench:
             nonlocal next_index
             while (next_index < len(commands) and self.protocol.state == "ready"
                    and next_index - self.protocol.last_acked < ahead):
-                _, actions = self.protocol.submit(commands[next_index], self.now)
+                command = commands[next_index]
+                kind = "query" if queries and command.startswith(queries) else "line"
+                _, actions = self.protocol.submit(command, self.now, kind=kind)
                 next_index += 1
                 self._apply(actions)
                 if emergency_at is not None and next_index == emergency_at:

@@ -13,6 +13,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from link_harness import VirtualBench, assert_whole_valid_lines, job_log
 
+from hostd.link.replies import Ok
 from hostd.link.settings import LinkSettings
 from hostd.sim.settings import SimSettings
 
@@ -73,6 +74,53 @@ def test_random_fault_schedules_execute_every_line_once_in_order(
                         partial_lines=partial, ok_timeout=5.0, nudges=3)
     bench = run(commands, link, SimSettings(**knobs))  # type: ignore[arg-type]
     assert_exactly_once(bench, commands)
+
+
+QUERIES = ("M105 T0", "M114")
+
+
+def with_queries(commands: list[str], every: int) -> list[str]:
+    """``commands`` with every ``every``-th replaced by a query, M114 and M105 in turn."""
+    out = list(commands)
+    spots = range(every // 2, len(out), every)
+    for k, i in enumerate(spots):
+        out[i] = QUERIES[k % 2]
+    return out
+
+
+def assert_queries_answered(bench: VirtualBench, commands: list[str]) -> None:
+    """Each query got exactly one answer, in order, holding at least the ok that executed
+    it (an M105's ``ok T:`` may come after a timeout's nudge went out, and execute both)."""
+    asked = [i + 1 for i, c in enumerate(commands) if c in QUERIES]
+    answers = bench.outcome.answers
+    assert [a.line for a in answers] == asked
+    assert all(any(isinstance(r, Ok) for r in a.replies) for a in answers)
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(knobs=faults, length=st.integers(1, 1500), every=st.integers(2, 60))
+def test_every_query_is_answered_once_with_its_ok(
+        knobs: dict[str, object], length: int, every: int) -> None:
+    commands = with_queries(sliced_like(length, int(knobs["seed"])), every)  # type: ignore[call-overload]
+    link = LinkSettings(rx_buffer_bytes=int(knobs["rx_buffer_bytes"]),  # type: ignore[call-overload]
+                        ok_timeout=5.0, nudges=3)
+    bench = VirtualBench(link, SimSettings(**knobs))  # type: ignore[arg-type]
+    assert bench.connect()
+    bench.stream(commands, queries=QUERIES)
+    assert_exactly_once(bench, commands)
+    assert_queries_answered(bench, commands)
+
+
+@pytest.mark.parametrize("seed", [21, 22, 23])
+def test_queries_whose_oks_are_lost_are_answered_after_the_nudge(seed: int) -> None:
+    commands = with_queries(sliced_like(3000, seed), 5)
+    sim = SimSettings(lost_ok_prob=0.02, seed=seed)
+    bench = VirtualBench(LinkSettings(ok_timeout=5.0, nudges=3), sim)
+    assert bench.connect()
+    bench.stream(commands, queries=QUERIES)
+    assert_exactly_once(bench, commands)
+    assert_queries_answered(bench, commands)
+    assert bench.protocol.counters.timeouts > 0  # oks really were lost, and nudges sent
 
 
 @pytest.mark.parametrize(("flow", "advanced_ok", "rx", "seed"), [

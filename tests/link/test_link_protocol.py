@@ -141,6 +141,27 @@ def test_a_late_query_answer_after_the_nudge_still_answers_the_query() -> None:
     assert temps and temps[-1] is not None and temps[-1].heaters["T"].actual == 21.5
 
 
+def test_an_m105_finished_by_the_timeout_keeps_its_own_ok() -> None:
+    """An M105 going out in parts when the timeout comes is finished then, before the nudge:
+    the firmware answers it first, so the first ``ok T:`` is its, not the nudge's (else
+    every later line would be acknowledged one ``ok`` early)."""
+    from hostd.link.framing import encode, frame
+
+    p = ready(rx_buffer_bytes=63, ok_timeout=1.0)
+    long = "G1 X100.000 Y100.000 Z100.000 A10.0000 C1.0"
+    first = wire(p.submit(long, 0.0)[1])
+    assert first == encode(frame(1, long)).decode()
+    seq, actions = p.submit("M105 T0", 0.0, kind="query")
+    part = wire(actions)
+    assert part and not part.endswith("\n")  # in parts: the buffer is nearly full
+    assert wire(p.tick(1.0)).endswith("N3 M105*36\n")  # rest of line 2, then the nudge
+    out = p.receive("ok T:21.0 /0.0 B:20.0 /0.0", 1.1)  # line 2's (line 1's ok was lost)
+    assert acks(out) == [seq] and [a.line for a in out if isinstance(a, Answer)] == [seq]
+    later, _ = p.submit("G1 X1", 1.1)
+    assert acks(p.receive("ok T:21.0 /0.0 B:20.0 /0.0", 1.2)) == []  # the nudge's
+    assert acks(p.receive("ok", 1.3)) == [later]
+
+
 def test_no_answer_to_the_nudge_loses_the_link() -> None:
     p = ready(ok_timeout=1.0)
     p.submit("G1 X1", 0.0)
