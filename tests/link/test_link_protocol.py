@@ -13,6 +13,7 @@ from hostd.link.errors import (
     LinkLost,
     ResendLoop,
 )
+from hostd.link.framing import encode, frame
 from hostd.link.protocol import Protocol
 from hostd.link.settings import LinkSettings
 
@@ -145,8 +146,6 @@ def test_an_m105_finished_by_the_timeout_keeps_its_own_ok() -> None:
     """An M105 going out in parts when the timeout comes is finished then, before the nudge:
     the firmware answers it first, so the first ``ok T:`` is its, not the nudge's (else
     every later line would be acknowledged one ``ok`` early)."""
-    from hostd.link.framing import encode, frame
-
     p = ready(rx_buffer_bytes=63, ok_timeout=1.0)
     long = "G1 X100.000 Y100.000 Z100.000 A10.0000 C1.0"
     first = wire(p.submit(long, 0.0)[1])
