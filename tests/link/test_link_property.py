@@ -98,12 +98,13 @@ def assert_queries_answered(bench: VirtualBench, commands: list[str]) -> None:
 
 
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(knobs=faults, length=st.integers(1, 1500), every=st.integers(2, 60))
+@given(knobs=faults, length=st.integers(1, 1500), every=st.integers(2, 60),
+       flow=st.sampled_from(["window", "pingpong"]), partial=st.booleans())
 def test_every_query_is_answered_once_with_its_ok(
-        knobs: dict[str, object], length: int, every: int) -> None:
+        knobs: dict[str, object], length: int, every: int, flow: str, partial: bool) -> None:
     commands = with_queries(sliced_like(length, int(knobs["seed"])), every)  # type: ignore[call-overload]
-    link = LinkSettings(rx_buffer_bytes=int(knobs["rx_buffer_bytes"]),  # type: ignore[call-overload]
-                        ok_timeout=5.0, nudges=3)
+    link = LinkSettings(flow_control=flow, partial_lines=partial, ok_timeout=5.0, nudges=3,
+                        rx_buffer_bytes=int(knobs["rx_buffer_bytes"]))  # type: ignore[call-overload]
     bench = VirtualBench(link, SimSettings(**knobs))  # type: ignore[arg-type]
     assert bench.connect()
     bench.stream(commands, queries=QUERIES)
