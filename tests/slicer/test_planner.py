@@ -302,8 +302,8 @@ class _BrokenPool(Executor):
 
 
 class _DyingPool(Executor):
-    """A process pool whose worker dies on every second chunk: stage 3 has been through
-    the first chunk's layers when it meets the failure."""
+    """A process pool whose worker dies on every second chunk: the first chunk's results
+    are in when the failure is met."""
 
     def __init__(self) -> None:
         self.chunks = 0
