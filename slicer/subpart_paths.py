@@ -260,6 +260,24 @@ def _staged_in_processes(layers: list[LayerPlane], settings: ProcessSettings, gr
     return shells, staged
 
 
+def _stages_1_2(layers: list[LayerPlane], settings: ProcessSettings, grounded: bool,
+                bases: list[ChildBase], pool: Executor, procs: ProcessPoolExecutor | None
+                ) -> tuple[list[Future[tuple[Shell, float]]],
+                           list[Future[tuple[_Zones, float, float]]]]:
+    """Shells and zones of every layer: by chunks in ``procs`` when given, else (or when
+    that pool breaks) on ``pool``."""
+    if procs is not None:
+        try:
+            return _staged_in_processes(layers, settings, grounded, bases, procs)
+        except BrokenProcessPool:  # a worker died (out of memory?): the threads do it
+            pass
+    spec = fill_spec(settings)
+    shells = [pool.submit(timed, shell, lp.region, spec) for lp in layers]
+    job = _Job(layers, shells, settings, grounded, bases)
+    # every stage-2 task is queued after all the shells it waits for: no pool deadlock
+    return shells, [pool.submit(job.layer, i) for i in range(len(layers))]
+
+
 def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, float]],
                  settings: ProcessSettings, grounded: bool, bases: list[ChildBase],
                  pool: Executor, procs: ProcessPoolExecutor | None = None,
@@ -289,18 +307,9 @@ def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, 
     seconds : dict
         CPU seconds of "toolpaths" (shells, fill, order, lift) and "zones".
     """
-    if procs is not None and len(layers) >= min_layers:
-        try:
-            shells, staged = _staged_in_processes(layers, settings, grounded, bases, procs)
-            job = _Job(layers, shells, settings, grounded, bases)
-        except BrokenProcessPool:  # a worker died (out of memory?): the threads do it
-            procs = None
-    if procs is None or len(layers) < min_layers:
-        spec = fill_spec(settings)
-        shells = [pool.submit(timed, shell, lp.region, spec) for lp in layers]
-        job = _Job(layers, shells, settings, grounded, bases)
-        # every stage-2 task is queued after all the shells it waits for: no pool deadlock
-        staged = [pool.submit(job.layer, i) for i in range(len(layers))]
+    shells, staged = _stages_1_2(layers, settings, grounded, bases, pool,
+                                 procs if len(layers) >= min_layers else None)
+    job = _Job(layers, shells, settings, grounded, bases)
     seconds = {"toolpaths": 0.0, "zones": 0.0}
     out, t = timed(_order_and_lift, index, job, staged, poses, seconds)
     seconds["toolpaths"] += t + sum(f.result()[1] for f in shells)
