@@ -80,6 +80,14 @@ class InFlight:
                 return sent
         return None
 
+    def release_from(self, number: int, keep: Sent | None = None) -> None:
+        """Release the credit of the oldest transmission of a line numbered ``number`` or
+        higher that still holds it (other than ``keep``); the entry stays."""
+        for sent in self._entries:
+            if sent.number >= number and sent.counted and sent is not keep:
+                self._release(sent)
+                return
+
     def remove(self, sent: Sent) -> None:
         """Forget one transmission (it was answered)."""
         self._entries.remove(sent)

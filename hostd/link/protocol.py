@@ -18,7 +18,8 @@ rejects (bad checksum, wrong number) is answered at once, out of order, by ``Err
   latest rewind is a duplicate and ignored; a loop guard counts rewinds per line;
 - window credit is the bytes of transmissions not yet answered: a success ``ok`` frees every
   transmission of the lines it executed, an error ``ok`` the oldest transmission at or after
-  ``k`` (the one rejected), and after a whole timeout of silence all credit is released;
+  ``k`` (the one rejected), and after a whole timeout of silence all credit is released (an
+  error ``ok`` after that also frees a line sent since: see ``_error_ok``);
 - with ADVANCED_OK, lines waiting in the firmware's command queue no longer use its receive
   buffer. Marlin sends ``ok N<k> P<p> B<b>`` after processing line ``k`` while ``k`` still
   holds its queue slot, so ``BUFSIZE - b`` slots hold ``k`` and the ``BUFSIZE - b - 1`` lines
@@ -377,10 +378,8 @@ class Protocol:
             self._handshake_ok(now)
             return
         if self._after_resend is not None:
-            rejected = self._inflight.first_from(self._after_resend)
+            self._error_ok(self._after_resend)
             self._after_resend = None
-            if rejected is not None and rejected is not self._partial:  # not seen whole
-                self._inflight.remove(rejected)
             return
         if ok.line is not None and ok.buffer_free is not None:
             self._note_queue(ok.line, ok.buffer_free)
@@ -388,6 +387,22 @@ class Protocol:
         if line <= self._executed:
             return
         self._execute_through(line, ok, now)
+
+    def _error_ok(self, line: int) -> None:
+        """The error ``ok`` after ``Resend: line`` answers the oldest transmission of ``line``
+        or later, the one rejected (not a line going out in parts: not seen whole).
+
+        If a timeout already released that transmission's credit, the firmware had answered
+        everything sent before the timeout or lost the answers, so the rejection is of a line
+        sent since: the credit of the oldest such is released too (the entries stay as they
+        are, for telling duplicate requests apart)."""
+        rejected = self._inflight.first_from(line)
+        if rejected is None or rejected is self._partial:
+            return
+        released = not rejected.counted
+        self._inflight.remove(rejected)
+        if released:
+            self._inflight.release_from(line, keep=self._partial)
 
     def _plain_ok(self, now: float) -> None:
         """:meth:`_on_ok` for a plain ``ok`` in ``ready`` with no resend pending: it

@@ -161,6 +161,24 @@ def test_an_m105_finished_by_the_timeout_keeps_its_own_ok() -> None:
     assert acks(p.receive("ok", 1.3)) == [later]
 
 
+def test_a_rejection_after_a_timeout_frees_a_line_sent_since() -> None:
+    """A line rejected with no ``Resend`` (or whose ``Resend`` was lost) is followed by a
+    timeout and its nudge, which the firmware rejects in turn. That error ``ok`` answers the
+    nudge, not the line from before the timeout, whose credit the timeout already released:
+    the nudge's credit is freed and the line goes out again at once, not a timeout later."""
+    p = ready(rx_buffer_bytes=63, ok_timeout=1.0, partial_lines=False)
+    long = "G1 X100.000 Y100.000 Z10.000 F12000"
+    p.submit(long, 0.0)
+    p.receive("Error:No Line Number with checksum, Last Line: 0", 0.1)  # and no Resend
+    assert writes(p.tick(1.0)) == ["N2 M105*37"]
+    p.receive("Error:Line Number is not Last Line Number+1, Last Line: 0", 1.1)
+    p.receive("Resend: 1", 1.1)
+    resent = writes(p.receive("ok", 1.1))  # the nudge's rejection; the window is halved
+    assert resent == [encode(frame(1, long)).decode().strip()]
+    assert acks(p.receive("ok", 1.2)) == [1]
+    assert writes(p.receive("ok", 1.2)) == [] and p.inflight_bytes == 0
+
+
 def test_no_answer_to_the_nudge_loses_the_link() -> None:
     p = ready(ok_timeout=1.0)
     p.submit("G1 X1", 0.0)
