@@ -15,8 +15,8 @@ error modes lose a line instead, which no host can account for, so they are not 
   as received anyway and swallows the next line.
 
 Against those the oks run one line short of the lines sent, so the host counts them a line
-behind until a nudge's ``ok T:`` resynchronises; and every rewind to a line the board already
-holds draws a ``Resend`` for the next one, which can chain into one line per timeout.
+behind until a nudge's ``ok T:`` resynchronises, and a rewind to a line the board already
+holds draws a ``Resend`` for the next one: each lost line costs a few ``ok`` timeouts.
 """
 
 from __future__ import annotations
