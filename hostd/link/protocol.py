@@ -32,7 +32,8 @@ rejects (bad checksum, wrong number) is answered at once, out of order, by ``Err
   adds any, describe no processed line) and plain ``ok`` s teach nothing, and without
   ADVANCED_OK the credit stays within the receive buffer alone;
 - on a timeout the next line (or a numbered ``M105``) is sent as a nudge; a second timeout
-  without any ``ok`` declares the link lost.
+  without any ``ok`` declares the link lost. ``busy:`` and the temperature line an ``M109``
+  or ``M190`` prints each second while it waits (``W:``) put the timeout off.
 
 Lines in parts (``partial_lines``, window mode)
 -----------------------------------------------
@@ -82,6 +83,7 @@ from hostd.link.replies import (
     Ok,
     Reply,
     Resend,
+    Temperatures,
     Wait,
     parse_reply,
 )
@@ -542,6 +544,17 @@ class Protocol:
     def _on_busy(self, busy: Busy, now: float) -> None:
         self._progress = now
 
+    def _on_temperatures(self, temps: Temperatures, now: float) -> None:
+        """A temperature report: collected for a query; the once-a-second line of an
+        ``M109``/``M190`` wait (``W:``) also shows the firmware at work, like ``busy:``
+        (Marlin prints it even without its busy keepalive, where a long heat-up would
+        otherwise run into the ok timeout). Autoreports (``M155``) and ``M105`` answers
+        carry no ``W:``, so a board that lost an ``ok`` still times out while it reports."""
+        if temps.waiting:
+            self._progress = now
+        if self.state == "ready":
+            self._collect(temps)
+
     def _on_wait(self, wait: Wait, now: float) -> None:
         self.counters.waits += 1
 
@@ -615,7 +628,7 @@ class Protocol:
 
     _handlers: ClassVar[dict[type, Any]] = {
         Ok: _on_ok, Resend: _on_resend, ErrorReply: _on_error, Busy: _on_busy,
-        Wait: _on_wait, Halted: _on_halted, Banner: _on_banner,
+        Wait: _on_wait, Halted: _on_halted, Banner: _on_banner, Temperatures: _on_temperatures,
     }
 
 

@@ -21,6 +21,7 @@ _POWER = re.compile(r"(?:^|\s)(T\d*|B|C)?@\s*:\s*(-?\d+(?:\.\d*)?)")
 _AXIS = re.compile(r"(?:^|\s)([XYZABCUVWE])\s*:\s*(-?\d+(?:\.\d*)?)")
 _TEMP_START = re.compile(r"^(?:ok\s+)?T\d*\s*:\s*-?\d|^B\s*:\s*-?\d.*T\d*\s*:")
 _KEY = re.compile(r"(?:^|\s)([A-Z][A-Z0-9_]+):")
+_WAITING = re.compile(r"(?:^|\s)W\s*:\s*(?:\?|-?\d)")
 _HALT_WORDS = ("halted", "kill", "stopped", "m999")
 
 
@@ -37,10 +38,13 @@ class HeaterReading:
 class Temperatures:
     """A temperature report (``M105`` answer, ``M155`` autoreport, ``M109`` progress).
 
-    ``heaters`` maps ``T``, ``T0``, ``B`` … to their readings.
+    ``heaters`` maps ``T``, ``T0``, ``B`` … to their readings. ``waiting``: the report ends
+    in Marlin's ``W:`` field (the residency countdown, ``?`` before it starts), which only the
+    once-a-second line of an ``M109``/``M190`` wait carries.
     """
 
     heaters: dict[str, HeaterReading] = field(default_factory=dict)
+    waiting: bool = False
 
 
 @dataclass(frozen=True)
@@ -282,7 +286,7 @@ def parse_temperatures(text: str) -> Temperatures:
             continue
         heaters[name] = HeaterReading(float(actual), float(target) if target else None,
                                       powers.get(name))
-    return Temperatures(heaters)
+    return Temperatures(heaters, _WAITING.search(text) is not None)
 
 
 def parse_key_values(text: str) -> dict[str, str]:

@@ -26,6 +26,8 @@ from hostd.sim.settings import SimSettings
 
 _M112 = re.compile(rb"(?:^|[\s\d])M112(?:[\s*]|$)")
 HALT_MESSAGE = "Error:Printer halted. kill() called!"
+HEAT_WAITS = ("M109", "M190")
+HEAT_REPORT_INTERVAL = 1.0  # s: Marlin prints the heaters once a second while M109/M190 wait
 
 
 def xor_checksum(data: bytes) -> int:
@@ -79,6 +81,7 @@ class Firmware:
         self.busy_until = 0.0
         self.read_at = 0.0  # the main loop reads the receive buffer again from then on
         self._busy_report_at: float | None = None
+        self._heat_report_at: float | None = None
         self._autoreport_at: float | None = None
         self._out += ["start", f"echo:{FIRMWARE_NAME}", "echo: Free Memory: 4096"]
 
@@ -182,7 +185,8 @@ class Firmware:
 
     def next_event(self) -> float | None:
         """Simulated time of the next internal event, if any."""
-        times = [t for t in (self._busy_report_at, self._autoreport_at) if t is not None]
+        times = [t for t in (self._busy_report_at, self._heat_report_at, self._autoreport_at)
+                 if t is not None]
         head = self._head_ready()
         if head is not None:
             times.append(head)
@@ -202,6 +206,10 @@ class Firmware:
         if self._busy_report_at is not None and self.now >= self._busy_report_at:
             self._out.append("echo:busy: processing")
             self._busy_report_at += self.settings.busy_interval
+        if self._heat_report_at is not None and self.now >= self._heat_report_at:
+            # the wait loop's line: the heaters, then the residency countdown (not begun)
+            self._out.append(" " + self.machine.temperature_report(self.now) + " W:?")
+            self._heat_report_at += HEAT_REPORT_INTERVAL
         interval = self.machine.autoreport
         if interval <= 0:
             self._autoreport_at = None
@@ -294,12 +302,14 @@ class Firmware:
                 return False
         if self.machine.ready_at(cmd, self.now) > self.now:
             self._arm_busy_report()
+            if cmd.code in HEAT_WAITS and self._heat_report_at is None:
+                self._heat_report_at = self.now + HEAT_REPORT_INTERVAL
             return False
         self._complete(cmd)
         return True
 
     def _arm_busy_report(self) -> None:
-        blocked = bool(self.queue)
+        blocked = bool(self.queue) and self.settings.busy_interval > 0
         if not blocked:
             self._busy_report_at = None
         elif self._busy_report_at is None:
@@ -307,7 +317,7 @@ class Firmware:
 
     def _complete(self, cmd: Command) -> None:
         lines, ok_text = self.machine.finish(cmd, self.now)
-        self._busy_report_at = None
+        self._busy_report_at = self._heat_report_at = None
         self.log.append((cmd.number, cmd.text))
         self._out.extend(lines)
         if self.settings.advanced_ok and ok_text is None:

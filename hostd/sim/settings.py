@@ -32,7 +32,9 @@ class SimSettings:
         Simulated seconds the main loop spends elsewhere (display, heaters) after each
         command before it reads the receive buffer again; bytes arriving meanwhile wait there.
     busy_interval
-        Simulated seconds between ``echo:busy: processing`` while a command waits.
+        Simulated seconds between ``echo:busy: processing`` while a command waits; 0 for
+        none (Marlin without ``HOST_KEEPALIVE_FEATURE``). ``M109``/``M190`` print the
+        heaters with ``W:`` once a second while they wait, either way.
     bit_flip_prob
         Probability that a received line has one bit flipped.
     lost_ok_prob

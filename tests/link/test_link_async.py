@@ -189,3 +189,21 @@ async def test_m114_shows_a_lost_step_on_c() -> None:
     assert isinstance(pos, Position)
     assert pos.axes["C"] == pytest.approx(31.8)
     assert pos.axes["X"] == pytest.approx(5.0)
+
+
+@pytest.mark.asyncio
+async def test_a_long_heat_up_without_busy_keepalive_does_not_lose_the_link() -> None:
+    """A board without Marlin's busy keepalive heats for several ok timeouts (2 s of wall
+    time here; 0.5 s timeouts, one nudge): its once-a-second heater lines keep the link."""
+    sim = SimSettings(busy_interval=0, realtime=True, time_scale=50.0)
+    link = SerialLink(dataclasses.replace(FAST, ok_timeout=0.5, nudges=1), sim)
+    lines = ["M109 S200", "G1 X1 F6000", "M105"]
+    async with asyncio.timeout(30):
+        await link.connect()
+        firmware = board(link)
+        acked = await collect(link, lines)
+        status = link.status()
+        await link.close()
+    assert acked == [0, 1, 2] and [t for _, t in firmware.log[-3:]] == lines
+    assert firmware.machine.hotend.temperature(firmware.now) == pytest.approx(200.0, abs=1.0)
+    assert status["firmware_name"] and firmware.boots == 1

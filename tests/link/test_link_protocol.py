@@ -195,6 +195,21 @@ def test_busy_extends_the_timeout() -> None:
     assert writes(p.tick(1.5)) == []
 
 
+def test_a_heating_waits_temperature_lines_extend_the_timeout_and_autoreports_do_not() -> None:
+    """Without Marlin's busy keepalive, an ``M109`` still prints the heaters with ``W:`` each
+    second while it waits: the firmware is at work, no nudge goes out. An autoreport (no
+    ``W:``) is no such sign: a lost ``ok`` still times out."""
+    p = ready(ok_timeout=1.0)
+    seq, _ = p.submit("M109 S210", 0.0)
+    for second in range(1, 6):
+        p.receive(f"T:{40 * second}.00 /210.00 B:22.00 /0.00 @:127 B@:0 W:?", second - 0.1)
+        assert writes(p.tick(float(second))) == []
+    assert acks(p.receive("ok", 5.5)) == [seq]
+    p.submit("G1 X1", 5.5)
+    p.receive("T:210.00 /210.00 B:22.00 /0.00 @:40 B@:0", 6.0)  # M155: the ok is lost
+    assert writes(p.tick(6.5)) == [encode(frame(3, "M105")).decode().strip()]
+
+
 def test_start_banner_mid_print_interrupts_at_the_last_ack_and_handshakes_again() -> None:
     p = ready()
     for i in range(3):

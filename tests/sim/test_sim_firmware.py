@@ -71,6 +71,16 @@ def test_m109_waits_with_busy_keepalive_until_the_heater_is_hot() -> None:
     assert fw.machine.hotend.temperature(fw.now) == pytest.approx(200.0, abs=1.0)
 
 
+def test_m109_without_busy_keepalive_prints_the_heaters_each_second() -> None:
+    fw = board(busy_interval=0)
+    out = send(fw, 1, "M109 S200")
+    assert out[-1] == "ok" and not any("busy" in line for line in out)
+    reports = [line for line in out[:-1] if line.strip().startswith("T:")]
+    assert len(reports) >= 5 and all(line.endswith(" W:?") for line in reports)
+    temps = [float(line.split()[0][2:]) for line in reports]
+    assert temps == sorted(temps) and temps[-1] < 200.0  # heating, then the ok
+
+
 def test_advanced_ok_reports_line_planner_and_queue() -> None:
     fw = board(advanced_ok=True)
     assert send(fw, 1, "G1 X1") == ["ok N1 P14 B3"]  # the G1 still holds its slot
