@@ -21,6 +21,7 @@ from slicer.gcode_reader import parse_words
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.replay import model_index, replay_check
+from slicer.replay_coverage import shell_depth, shell_grid
 from slicer.replay_geometry import ModelIndex
 from slicer.settings import ProcessSettings
 
@@ -149,8 +150,17 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         plan = plan_model(mesh, placement, settings, geometry, head, decompose_settings,
                           planar, build_volume)
         timings["plan"] = time.perf_counter() - t1
+        if index is not None:  # and its coverage grid while the G-code is written
+            index = early.submit(_with_grid, index, settings)
         return _finish(mesh, plan, settings, MachineSetup(geometry, head, platform_radius),
                        index, timings, t0, keep_plan)
+
+
+def _with_grid(index: Future[ModelIndex], settings: ProcessSettings) -> ModelIndex:
+    """``index`` once built, with the coverage grid the replay will ask for."""
+    model = index.result()
+    shell_grid(model, shell_depth(settings.perimeters, settings.line_width))
+    return model
 
 
 def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,

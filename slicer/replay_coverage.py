@@ -36,6 +36,21 @@ def grid_pitch(volume: float) -> float:
     return max(MIN_PITCH, (volume / MAX_GRID) ** (1.0 / 3.0))
 
 
+def shell_grid(model: ModelIndex, depth: float) -> tuple[np.ndarray, np.ndarray]:
+    """The model's coverage grid (g, 3) and which of its points lie in the shell (within
+    ``depth`` of the surface), (g,) bool; kept in ``model.grids``: it needs nothing of the
+    G-code, so a slicer may build it before the replay."""
+    if depth not in model.grids:
+        g = volume_grid(model.tris, grid_pitch(mesh_volume(model.tris)))
+        model.grids[depth] = (g, model.within(g, depth) if len(g) else np.zeros(0, bool))
+    return model.grids[depth]
+
+
+def shell_depth(perimeters: int, line_width: float) -> float:
+    """How deep the shell (the perimeters) reaches below the surface, mm."""
+    return max(perimeters, 1) * line_width
+
+
 def _shell_covered(g: np.ndarray, s: Samples, tree: cKDTree, w: float, t: float
                    ) -> np.ndarray:
     r = float(np.hypot(REACH * w, s.h.max() + 0.25 * t))
@@ -83,14 +98,11 @@ def coverage(model: ModelIndex, s: Samples, line_width: float, layer_height: flo
     (total, shell) : float, float
         Shares in [0, 1] (1.0 for an empty model).
     """
-    pitch = grid_pitch(mesh_volume(model.tris))
-    g = volume_grid(model.tris, pitch)
+    g, shell = shell_grid(model, shell_depth(perimeters, line_width))
     if len(g) == 0:
         return 1.0, 1.0
     if len(s) == 0:
         return 0.0, 0.0
-    depth = max(perimeters, 1) * line_width
-    shell = model.within(g, depth)
     tree = point_tree(s.p) if tree is None else tree
     covered = np.zeros(len(g), dtype=bool)
     covered[shell] = _shell_covered(g[shell], s, tree, line_width, layer_height)

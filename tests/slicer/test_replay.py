@@ -12,6 +12,7 @@ from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import parse_lines
 from slicer.plan import PrintPlan, SubpartPlan
 from slicer.replay import model_index, replay_check
+from slicer.replay_coverage import shell_depth, shell_grid
 from slicer.replay_geometry import ModelIndex
 from slicer.samples import to_manifold, to_trimesh
 from slicer.settings import ProcessSettings
@@ -157,13 +158,16 @@ def test_a_prebuilt_model_index_gives_the_same_figures_and_a_wrong_one_is_not_us
     parsed = parse_lines(generate(plan, ProcessSettings(), MachineSetup(GEO)).lines)
     w = ProcessSettings().line_width
     other = _union(prism_mesh(np.zeros(3), UP, 9.0, 40 * H))  # not this model at all
+    gridded = model_index(mesh, w)  # with the coverage grid built, as the pipeline does
+    shell_grid(gridded, shell_depth(ProcessSettings().perimeters, w))
     reps = [replay_check(parsed, mesh, index=index).to_dict()
-            for index in (None, model_index(mesh, w), model_index(other, 2 * w))]
+            for index in (None, model_index(mesh, w), gridded, model_index(other, 2 * w))]
     for rep in reps:
         for timing in ("seconds", "timings", "cpu_timings"):
             rep.pop(timing)
     assert reps[0]["coverage"] > 0.9  # the figures under comparison are not trivial
-    assert reps[0] == reps[1] == reps[2]  # built for another line width: rebuilt here
+    assert reps[0] == reps[1] == reps[2] == reps[3]  # another line width: rebuilt here
+    assert len(gridded.grids) == 1  # the replay used the grid built before
 
 
 def test_inside_test_with_coarse_lines_casts_rays_near_the_surface():
