@@ -17,6 +17,13 @@ error modes lose a line instead, which no host can account for, so they are not 
 Against those the oks run one line short of the lines sent, so the host counts them a line
 behind until a nudge's ``ok T:`` resynchronises, and a rewind to a line the board already
 holds draws a ``Resend`` for the next one: each lost line costs a few ``ok`` timeouts.
+
+Nor is its ``okFormatString`` given ADVANCED_OK fields (``ok N{lastN} P… B{buffer}``): it
+answers a line when it queues it, with the last line received and the slots free after it
+(``B`` reaches the full queue size). Marlin answers a line once it is processed, while it
+still holds its slot, which is what hostd's credit counts on (:mod:`hostd.link.protocol`);
+with the emulator's format hostd takes queued lines for read out of the receive buffer and
+overfills it.
 """
 
 from __future__ import annotations
