@@ -13,8 +13,9 @@ the quadrant); here every layer has its own A/C from the two-solution solver.
 
 from __future__ import annotations
 
+import contextlib
 import time
-from concurrent.futures import Future
+from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
 
 import manifold3d as m3
@@ -28,13 +29,14 @@ from kinematics.errors import UnreachableDirection
 from kinematics.machine import MachineGeometry
 from kinematics.orient import solve_orientation
 from slicer.interfaces import ChildBase
+from slicer.layer_workers import layer_processes, start_stages
 from slicer.layers import LayerPlane, MarchSettings, SlicingError, march_layers
 from slicer.plan import Layer, PrintPlan, SubpartPlan
 from slicer.planes2d import from_plane, plane_frame, section, slicing_solid
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 from slicer.skeleton import SkeletonCurve, line_curve, skeleton_curve
-from slicer.subpart_paths import build_layers, layer_processes, pool, workers
+from slicer.subpart_paths import build_layers, pool, workers
 
 __all__ = ["SlicingError", "plan_planar", "plan_print"]
 
@@ -273,25 +275,31 @@ def plan_print(decomposition, settings: ProcessSettings, geometry: MachineGeomet
     machine = _Machine(geometry, head)
     subs = {s.index: s for s in decomposition.subparts}
     t = settings.layer_height
-    marched = []
-    for k in decomposition.order:  # marching reads the printed state: in build order
-        sp = subs[k]
-        base = _base_of(sp)
-        layers, poses = _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings,
-                                       machine, timer)
-        kids = [_child_base(c.index, c.mesh, c.base_plane.point, c.base_plane.normal, t)
-                for c in decomposition.subparts if c.parent == k and c.base_plane is not None]
-        timer.lap("sections")
-        marched.append((sp, base, layers, poses, kids))
-        machine.parts = np.vstack([machine.parts, _surface_samples(sp.mesh, OBSTACLE_SPACING)])
-        timer.lap("obstacles")
     threads = workers()
-    longest = max((len(layers) for _, _, layers, _, _ in marched), default=0)
-    with pool(threads) as leaf, pool(min(threads, len(marched))) as builder, \
-            layer_processes(longest) as procs:
+    with pool(threads) as leaf, pool(min(threads, len(subs))) as builder, \
+            contextlib.ExitStack() as forks:
+        procs: Executor | None = None
+        marched = []
+        for k in decomposition.order:  # marching reads the printed state: in build order
+            sp = subs[k]
+            base = _base_of(sp)
+            layers, poses = _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings,
+                                           machine, timer)
+            kids = [_child_base(c.index, c.mesh, c.base_plane.point, c.base_plane.normal, t)
+                    for c in decomposition.subparts
+                    if c.parent == k and c.base_plane is not None]
+            timer.lap("sections")
+            if procs is None:  # forked for the first long sub-part, before any pool thread
+                procs = forks.enter_context(layer_processes(len(layers)))
+            # a long sub-part's stages 1-2 run in the workers while the others are marched
+            staged = start_stages(layers, settings, sp.parent is None, kids, procs)
+            marched.append((sp, base, layers, poses, kids, staged))
+            machine.parts = np.vstack([machine.parts,
+                                       _surface_samples(sp.mesh, OBSTACLE_SPACING)])
+            timer.lap("obstacles")
         jobs = [builder.submit(build_layers, sp.index, layers, poses, settings,
-                               sp.parent is None, kids, leaf, procs)
-                for sp, _, layers, poses, kids in marched]
+                               sp.parent is None, kids, leaf, staged)
+                for sp, _, layers, poses, kids, staged in marched]
         plans = [SubpartPlan(sp.index, sp.parent, None if sp.parent is None else base[0],
                              None if sp.parent is None else base[1],
                              np.asarray(sp.build_direction, dtype=float), _built(job, timer))
@@ -330,7 +338,8 @@ def plan_planar(mesh: trimesh.Trimesh, settings: ProcessSettings,
     base = (np.array([0.0, 0.0, float(mesh.bounds[0][2])]), UP.copy(), True)
     layers, poses = _slice_subpart(0, mesh, base, settings, machine, timer)
     with pool(workers()) as leaf, layer_processes(len(layers)) as procs:
-        plan_layers, seconds = build_layers(0, layers, poses, settings, True, [], leaf, procs)
+        staged = start_stages(layers, settings, True, [], procs)
+        plan_layers, seconds = build_layers(0, layers, poses, settings, True, [], leaf, staged)
     timer.lap("paths")
     timer.laps.update({k: timer.laps.get(k, 0.0) + v for k, v in seconds.items()})
     sub = SubpartPlan(0, None, None, None, UP.copy(), plan_layers)

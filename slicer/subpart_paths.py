@@ -13,17 +13,14 @@ while GEOS works, so two cores offset most of the polygon booleans); stage 3 run
 order. Every layer is computed by the same calls on the same inputs as in a plain loop, and
 results are collected in layer order, so the plan does not depend on the pool or on timing.
 
-The planner marches every sub-part first and builds all their paths afterwards: running the
-pool beside the marching made the marching wait for the GIL after each numpy or GEOS call
-(manifold3d and CGAL keep it while they work), which cost more than the overlap gained.
+The planner marches every sub-part first and builds their paths on threads afterwards:
+running the pool beside the marching made the marching wait for the GIL after each numpy or
+GEOS call (manifold3d and CGAL keep it while they work), which cost more than the overlap
+gained.
 
-A sub-part of :data:`CHUNK_MIN_LAYERS` layers or more (the root of a branched part holds most
-of them) has its stages 1 and 2 computed in worker processes instead, by chunks of consecutive
-layers (a chunk also computes the shell of the layer after its last, which stage 2 reads):
-threads gain nothing there, as the Python between the GEOS calls holds the GIL. The workers
-are forked (:func:`layer_processes`; a forked child has the parent's modules and only runs
-shapely and numpy here) and the calls are the same as in a plain loop, so the plan is the same
-byte for byte; if the pool breaks, the sub-part is computed on the threads as before.
+A sub-part of many layers (the root of a branched part holds most of them) has its stages 1
+and 2 computed in worker processes instead (:mod:`slicer.layer_workers`), started as soon as
+it is marched; :func:`build_layers` then reads them layer by layer in stage 3.
 
 Stage timings are CPU seconds of the threads doing the work (:func:`time.thread_time`),
 summed over tasks: on two cores they add up to more than the wall time.
@@ -31,18 +28,12 @@ summed over tasks: on two cores they add up to more than the wall time.
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import itertools
-import multiprocessing
 import os
-import signal
 import time
-from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, ThreadPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
+from collections.abc import Callable, Sequence
+from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Protocol, TypeVar
 
 import numpy as np
 import shapely
@@ -57,10 +48,14 @@ from slicer.toolpaths import FillSpec, Path2D, Shell, fill_paths, layer_paths, s
 from slicer.zones import solid_zone, wall_footing
 
 T = TypeVar("T")
+T_co = TypeVar("T_co", covariant=True)
 MAX_WORKERS = 4
-CHUNK_MIN_LAYERS = 100  # a sub-part with this many layers has stages 1-2 in processes
-CHUNKS_PER_PROCESS = 3  # chunks of layers per worker process: evens out unequal chunks
-PR_SET_PDEATHSIG = 1  # prctl(2): a signal for this process when its parent dies
+
+
+class Pending(Protocol[T_co]):
+    """A result to come: a future, or a layer's part of a chunk computed by the workers."""
+
+    def result(self) -> T_co: ...
 
 
 class InlineExecutor(Executor):
@@ -89,46 +84,6 @@ def pool(threads: int) -> Executor:
     return ThreadPoolExecutor(threads) if threads > 1 else InlineExecutor()
 
 
-@contextlib.contextmanager
-def layer_processes(longest: int, min_layers: int = CHUNK_MIN_LAYERS
-                    ) -> Iterator[ProcessPoolExecutor | None]:
-    """Forked worker processes, one per core (at most :data:`MAX_WORKERS`), when a sub-part
-    of ``longest`` layers reaches ``min_layers`` and there are two cores; else ``None``.
-
-    The workers are forked at once, in the caller's thread (a fork copies only the thread
-    that makes it: forking here, not from a builder thread at its first submission while
-    other threads run, leaves no lock in the child held by a thread it does not have). When
-    the caller fails, the chunks not yet started are dropped.
-    """
-    n = _processes()
-    if n < 2 or longest < min_layers:
-        yield None
-        return
-    procs = ProcessPoolExecutor(n, mp_context=multiprocessing.get_context("fork"),
-                                initializer=die_with_parent, initargs=(os.getpid(),))
-    try:
-        procs.submit(os.getpid)  # with "fork", the first submission starts every worker
-        yield procs
-    except BaseException:
-        procs.shutdown(wait=True, cancel_futures=True)
-        raise
-    procs.shutdown(wait=True)
-
-
-def die_with_parent(parent: int) -> None:
-    """Worker initializer: on Linux the kernel kills this worker when the process that
-    started it dies (a slicer killed for memory, or with its daemon, leaves no orphans
-    waiting for work forever)."""
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    if os.getppid() != parent:  # it died before the request took effect
-        os._exit(1)
-
-
-def _processes() -> int:
-    return min(MAX_WORKERS, os.cpu_count() or 1)
-
-
 def fill_spec(settings: ProcessSettings) -> FillSpec:
     """The fill parameters of the process settings."""
     return FillSpec(settings.line_width, settings.perimeters, settings.infill_density,
@@ -143,13 +98,18 @@ def timed(fn: Callable[..., T], *args: object) -> tuple[T, float]:
 
 
 @dataclass
-class _Zones:
+class Zones:
     """A layer's stage-2 results."""
 
     solid: BaseGeometry
     interface: BaseGeometry
     owner: int | None
     fill: list[Path2D]
+
+
+Staged = tuple[list[tuple[Shell, float]], list[tuple[Zones, float, float]]]  # of a chunk
+Stages = tuple[Sequence[Pending[tuple[Shell, float]]],  # shells and zones of every layer
+                Sequence[Pending[tuple[Zones, float, float]]]]
 
 
 def _union(a: BaseGeometry, b: BaseGeometry) -> BaseGeometry:
@@ -162,7 +122,7 @@ def _union(a: BaseGeometry, b: BaseGeometry) -> BaseGeometry:
 class _Shells(Sequence[BaseGeometry]):
     """One attribute ("domain", "inner") of the layers' shells, read from their futures."""
 
-    def __init__(self, shells: Sequence[Future[tuple[Shell, float]]], attr: str) -> None:
+    def __init__(self, shells: Sequence[Pending[tuple[Shell, float]]], attr: str) -> None:
         self.shells, self.attr = shells, attr
 
     def __len__(self) -> int:
@@ -173,12 +133,12 @@ class _Shells(Sequence[BaseGeometry]):
 
 
 @dataclass
-class _Job:
+class LayerJob:
     """What every layer of one sub-part shares in stage 2 (shells as futures: a layer's
     stage 2 reads only its own shell and the next one's)."""
 
     layers: Sequence[LayerPlane]
-    shells: Sequence[Future[tuple[Shell, float]]]
+    shells: Sequence[Pending[tuple[Shell, float]]]
     settings: ProcessSettings
     grounded: bool
     bases: list[ChildBase]
@@ -196,12 +156,12 @@ class _Job:
             solid = polygonal(shapely.union(solid, izone), valid=True)
         return solid, izone, owner
 
-    def layer(self, i: int) -> tuple[_Zones, float, float]:
+    def layer(self, i: int) -> tuple[Zones, float, float]:
         """Stage 2 of layer i with its zone and fill CPU seconds."""
         (solid, izone, owner), t_zone = timed(self.zones, i)
         fill, t_fill = timed(fill_paths, self.shells[i].result()[0].domain, solid, izone,
                              fill_spec(self.settings), i)
-        return _Zones(solid, izone, owner, fill), t_zone, t_fill
+        return Zones(solid, izone, owner, fill), t_zone, t_fill
 
 
 def _lift(paths: Sequence[Path2D], layer: LayerPlane, settings: ProcessSettings,
@@ -221,67 +181,26 @@ def _lift(paths: Sequence[Path2D], layer: LayerPlane, settings: ProcessSettings,
     return out
 
 
-def _done(value: T) -> Future[T]:
+def done(value: T) -> Future[T]:
     out: Future[T] = Future()
     out.set_result(value)
     return out
 
 
-def chunk_stages(layers: list[LayerPlane], settings: ProcessSettings, grounded: bool,
-                 bases: list[ChildBase], lo: int, hi: int
-                 ) -> tuple[list[tuple[Shell, float]], list[tuple[_Zones, float, float]]]:
-    """Stages 1 and 2 of layers ``lo`` to ``hi - 1`` (run in a worker process): their
-    timed shells and zones. The shell of layer ``hi`` is computed too, not returned."""
-    spec = fill_spec(settings)
-    shells: list[Future[tuple[Shell, float]] | None] = [None] * len(layers)
-    for i in range(lo, min(hi + 1, len(layers))):
-        shells[i] = _done(timed(shell, layers[i].region, spec))
-    job = _Job(layers, shells, settings, grounded, bases)  # type: ignore[arg-type]
-    return ([shells[i].result() for i in range(lo, hi)],  # type: ignore[union-attr]
-            [job.layer(i) for i in range(lo, hi)])
-
-
-def _staged_in_processes(layers: list[LayerPlane], settings: ProcessSettings, grounded: bool,
-                         bases: list[ChildBase], procs: ProcessPoolExecutor
-                         ) -> tuple[list[Future[tuple[Shell, float]]],
-                                    list[Future[tuple[_Zones, float, float]]]]:
-    """Stages 1 and 2 of every layer, by chunks in ``procs``, as completed futures."""
-    n = len(layers)
-    k = min(n, CHUNKS_PER_PROCESS * _processes())
-    bounds = [n * j // k for j in range(k + 1)]
-    chunks = [procs.submit(chunk_stages, layers, settings, grounded, bases, lo, hi)
-              for lo, hi in itertools.pairwise(bounds)]
-    shells: list[Future[tuple[Shell, float]]] = []
-    staged: list[Future[tuple[_Zones, float, float]]] = []
-    for chunk in chunks:
-        sh, st = chunk.result()
-        shells += map(_done, sh)
-        staged += map(_done, st)
-    return shells, staged
-
-
-def _stages_1_2(layers: list[LayerPlane], settings: ProcessSettings, grounded: bool,
-                bases: list[ChildBase], pool: Executor, procs: ProcessPoolExecutor | None
-                ) -> tuple[list[Future[tuple[Shell, float]]],
-                           list[Future[tuple[_Zones, float, float]]]]:
-    """Shells and zones of every layer: by chunks in ``procs`` when given, else (or when
-    that pool breaks) on ``pool``."""
-    if procs is not None:
-        try:
-            return _staged_in_processes(layers, settings, grounded, bases, procs)
-        except BrokenProcessPool:  # a worker died (out of memory?): the threads do it
-            pass
+def _on_threads(layers: list[LayerPlane], settings: ProcessSettings, grounded: bool,
+                bases: list[ChildBase], pool: Executor) -> Stages:
+    """Stages 1 and 2 of every layer on ``pool``."""
     spec = fill_spec(settings)
     shells = [pool.submit(timed, shell, lp.region, spec) for lp in layers]
-    job = _Job(layers, shells, settings, grounded, bases)
+    job = LayerJob(layers, shells, settings, grounded, bases)
     # every stage-2 task is queued after all the shells it waits for: no pool deadlock
     return shells, [pool.submit(job.layer, i) for i in range(len(layers))]
 
 
 def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, float]],
                  settings: ProcessSettings, grounded: bool, bases: list[ChildBase],
-                 pool: Executor, procs: ProcessPoolExecutor | None = None,
-                 min_layers: int = CHUNK_MIN_LAYERS) -> tuple[list[Layer], dict[str, float]]:
+                 pool: Executor, staged: Stages | None = None
+                 ) -> tuple[list[Layer], dict[str, float]]:
     """Zones, toolpaths and plan Layers of one sub-part.
 
     Parameters
@@ -296,10 +215,10 @@ def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, 
     bases : list of ChildBase
         Its children's bases (interface zones).
     pool : Executor
-        Runs stages 1 and 2; its tasks never wait on each other.
-    procs : ProcessPoolExecutor, optional
-        Runs stages 1 and 2 instead, by chunks of layers, when the sub-part has
-        ``min_layers`` layers or more (:func:`layer_processes`).
+        Runs stages 1 and 2 unless ``staged``; its tasks never wait on each other.
+    staged : optional
+        Stages 1 and 2 already started in worker processes
+        (:func:`slicer.layer_workers.start_stages`).
 
     Returns
     -------
@@ -307,16 +226,16 @@ def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, 
     seconds : dict
         CPU seconds of "toolpaths" (shells, fill, order, lift) and "zones".
     """
-    shells, staged = _stages_1_2(layers, settings, grounded, bases, pool,
-                                 procs if len(layers) >= min_layers else None)
-    job = _Job(layers, shells, settings, grounded, bases)
+    shells, zones = staged or _on_threads(layers, settings, grounded, bases, pool)
+    job = LayerJob(layers, shells, settings, grounded, bases)
     seconds = {"toolpaths": 0.0, "zones": 0.0}
-    out, t = timed(_order_and_lift, index, job, staged, poses, seconds)
+    out, t = timed(_order_and_lift, index, job, zones, poses, seconds)
     seconds["toolpaths"] += t + sum(f.result()[1] for f in shells)
     return out, seconds
 
 
-def _order_and_lift(index: int, job: _Job, staged: list[Future[tuple[_Zones, float, float]]],
+def _order_and_lift(index: int, job: LayerJob,
+                    staged: Sequence[Pending[tuple[Zones, float, float]]],
                     poses: list[tuple[float, float]], seconds: dict[str, float]) -> list[Layer]:
     """Stage 3, layer by layer as stage 2 delivers: paths ordered from the previous layer's
     end, lifted into the platform frame. Stage 2's CPU seconds are added to ``seconds``."""

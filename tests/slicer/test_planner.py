@@ -17,12 +17,12 @@ import shapely.affinity
 
 from kinematics.machine import MachineGeometry
 from kinematics.transform import machine_direction
+from slicer.layer_workers import _staged_in_processes as REAL_STAGED
 from slicer.layers import LayerPlane
 from slicer.planner import SlicingError, plan_planar, plan_print
 from slicer.printhead import Printhead
 from slicer.samples import to_trimesh
 from slicer.settings import ProcessSettings
-from slicer.subpart_paths import _staged_in_processes as REAL_STAGED
 
 S = ProcessSettings()
 G = MachineGeometry()
@@ -318,26 +318,44 @@ class _DyingPool(Executor):
         return out
 
 
+class _BreakingPool(Executor):
+    """A process pool that breaks after its first chunk was submitted: the chunks it then
+    refuses are computed by stage 3's thread."""
+
+    def __init__(self) -> None:
+        self.chunks = 0
+
+    def submit(self, fn, /, *args, **kwargs):  # type: ignore[no-untyped-def]
+        self.chunks += 1
+        if self.chunks > 1:
+            raise BrokenProcessPool("a worker died")
+        out: Future = Future()
+        out.set_result(fn(*args, **kwargs))
+        return out
+
+
 def _plan_with(leaning, monkeypatch, threads: int, procs: str, chunked: list[int]) -> object:
     """The leaning part planned on ``threads`` threads and with ``procs``: "none" (threads
     only), "chunked" (every sub-part's stages 1-2 in forked processes, by chunks of layers)
-    or "broken" / "dies" (a pool that fails at once or in the middle: the threads take
-    over). Layers of sub-parts sent to the pool are added to ``chunked``."""
-    from slicer import planner, subpart_paths
+    or "broken" / "dies" / "breaks" (a pool that fails at once, on every second chunk, or
+    refuses chunks after the first: the threads take over). Layers of sub-parts sent to the
+    pool are added to ``chunked``."""
+    from slicer import layer_workers, planner
 
     def staged(layers, *args):  # type: ignore[no-untyped-def]
         chunked.append(len(layers))
         return REAL_STAGED(layers, *args)
 
-    monkeypatch.setattr(subpart_paths, "_staged_in_processes", staged)
+    monkeypatch.setattr(layer_workers, "_staged_in_processes", staged)
     monkeypatch.setattr(planner, "workers", lambda: threads)
     pools = {"none": lambda longest: contextlib.nullcontext(None),
-             "chunked": lambda longest: subpart_paths.layer_processes(longest, min_layers=1),
+             "chunked": lambda longest: layer_workers.layer_processes(longest, min_layers=1),
              "broken": lambda longest: contextlib.nullcontext(_BrokenPool()),
-             "dies": lambda longest: contextlib.nullcontext(_DyingPool())}
+             "dies": lambda longest: contextlib.nullcontext(_DyingPool()),
+             "breaks": lambda longest: contextlib.nullcontext(_BreakingPool())}
     monkeypatch.setattr(planner, "layer_processes", pools[procs])
-    monkeypatch.setattr(planner, "build_layers",
-                        functools.partial(subpart_paths.build_layers, min_layers=1))
+    monkeypatch.setattr(planner, "start_stages",
+                        functools.partial(layer_workers.start_stages, min_layers=1))
     return plan_print(leaning, S, G, Printhead.default())
 
 
@@ -345,13 +363,13 @@ def test_plan_does_not_depend_on_threads_or_processes(leaning, monkeypatch) -> N
     """Threads, worker processes by chunks of layers, or a broken pool: the same paths."""
     if (os.cpu_count() or 1) < 2:
         pytest.skip("worker processes need two cores")
-    runs = ((1, "none"), (2, "none"), (1, "chunked"), (2, "broken"), (1, "dies"))
+    runs = ((1, "none"), (2, "none"), (1, "chunked"), (2, "broken"), (1, "dies"), (2, "breaks"))
     chunked: dict[str, list[int]] = {procs: [] for _, procs in runs}
     plans = [_plan_with(leaning, monkeypatch, t, procs, chunked[procs]) for t, procs in runs]
     layers = sorted(len(sp.layers) for sp in plans[0].subparts)
     assert chunked["none"] == [] and sorted(chunked["chunked"]) == layers
     assert sorted(chunked["broken"]) == layers  # tried, then done on the threads
-    assert sorted(chunked["dies"]) == layers
+    assert sorted(chunked["dies"]) == layers == sorted(chunked["breaks"])
     for other in plans[1:]:
         _assert_same_paths(plans[0], other)
 
@@ -367,7 +385,7 @@ def _assert_same_paths(one, other) -> None:  # type: ignore[no-untyped-def]
 
 
 def test_planar_plan_is_the_same_with_worker_processes(monkeypatch) -> None:
-    from slicer import planner, subpart_paths
+    from slicer import layer_workers, planner
 
     if (os.cpu_count() or 1) < 2:
         pytest.skip("worker processes need two cores")
@@ -376,10 +394,10 @@ def test_planar_plan_is_the_same_with_worker_processes(monkeypatch) -> None:
     threads = plan_planar(mesh, S, G)
     chunked: list[int] = []
     monkeypatch.setattr(planner, "layer_processes",
-                        lambda n: subpart_paths.layer_processes(n, min_layers=1))
-    monkeypatch.setattr(planner, "build_layers",
-                        functools.partial(subpart_paths.build_layers, min_layers=1))
-    monkeypatch.setattr(subpart_paths, "_staged_in_processes",
+                        lambda n: layer_workers.layer_processes(n, min_layers=1))
+    monkeypatch.setattr(planner, "start_stages",
+                        functools.partial(layer_workers.start_stages, min_layers=1))
+    monkeypatch.setattr(layer_workers, "_staged_in_processes",
                         lambda layers, *a: chunked.append(len(layers)) or REAL_STAGED(layers, *a))
     _assert_same_paths(threads, plan_planar(mesh, S, G))
     assert chunked == [50]
