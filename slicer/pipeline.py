@@ -157,14 +157,9 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
 
 
 def _with_grid(index: Future[ModelIndex], settings: ProcessSettings) -> ModelIndex:
-    """``index`` once built, with the coverage grid the replay will ask for.
-
-    Its KD-tree searches run on this one thread: the G-code is written meanwhile on the
-    other core, which a search on both would take from it (and the grid is done long before
-    the replay needs it).
-    """
+    """``index`` once built, with the coverage grid the replay will ask for."""
     model = index.result()
-    shell_grid(model, shell_depth(settings.perimeters, settings.line_width), workers=1)
+    shell_grid(model, shell_depth(settings.perimeters, settings.line_width))
     return model
 
 

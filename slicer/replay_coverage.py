@@ -36,16 +36,13 @@ def grid_pitch(volume: float) -> float:
     return max(MIN_PITCH, (volume / MAX_GRID) ** (1.0 / 3.0))
 
 
-def shell_grid(model: ModelIndex, depth: float, workers: int = -1
-               ) -> tuple[np.ndarray, np.ndarray]:
+def shell_grid(model: ModelIndex, depth: float) -> tuple[np.ndarray, np.ndarray]:
     """The model's coverage grid (g, 3) and which of its points lie in the shell (within
     ``depth`` of the surface), (g,) bool; kept in ``model.grids``: it needs nothing of the
-    G-code, so a slicer may build it before the replay (``workers``: threads of its KD-tree
-    searches, -1 for one per core)."""
+    G-code, so a slicer may build it before the replay."""
     if depth not in model.grids:
         g = volume_grid(model.tris, grid_pitch(mesh_volume(model.tris)))
-        model.grids[depth] = (g, model.within(g, depth, workers=workers) if len(g)
-                              else np.zeros(0, bool))
+        model.grids[depth] = (g, model.within(g, depth) if len(g) else np.zeros(0, bool))
     return model.grids[depth]
 
 

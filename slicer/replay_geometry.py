@@ -149,23 +149,20 @@ class ModelIndex:
         # the coverage grid and its shell mask per shell depth (.replay_coverage.shell_grid)
         self.grids: dict[float, tuple[np.ndarray, np.ndarray]] = {}
 
-    def nearest_bound(self, points: np.ndarray, cap: float, workers: int = -1) -> np.ndarray:
-        """Distance to the nearest surface sample (≥ the true distance), ``inf`` above ``cap``.
-
-        ``workers``: threads of the KD-tree search (-1: one per core).
-        """
+    def nearest_bound(self, points: np.ndarray, cap: float) -> np.ndarray:
+        """Distance to the nearest surface sample (≥ the true distance), ``inf`` above ``cap``."""
         if len(points) == 0:
             return np.zeros(0)
-        d, _ = self._tree.query(points, distance_upper_bound=cap + self.cover, workers=workers)
+        d, _ = self._tree.query(points, distance_upper_bound=cap + self.cover, workers=-1)
         return d
 
-    def _exact(self, p: np.ndarray, radius: np.ndarray, workers: int = -1) -> np.ndarray:
+    def _exact(self, p: np.ndarray, radius: np.ndarray) -> np.ndarray:
         """Exact distance of each point (k, 3) to the triangles of the samples within
         ``radius`` (k,) of it (``inf`` when there are none), (k,)."""
         out = np.full(len(p), np.inf)
         if len(p) == 0:
             return out
-        near = self._tree.query_ball_point(p, radius, workers=workers, return_sorted=False)
+        near = self._tree.query_ball_point(p, radius, workers=-1, return_sorted=False)
         counts = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(p))
         if counts.sum() == 0:
             return out
@@ -179,19 +176,17 @@ class ModelIndex:
         out[pi[starts]] = np.sqrt(np.minimum.reduceat(d2, starts))
         return out
 
-    def within(self, points: np.ndarray, limit: float, bound: np.ndarray | None = None,
-               workers: int = -1) -> np.ndarray:
+    def within(self, points: np.ndarray, limit: float, bound: np.ndarray | None = None
+               ) -> np.ndarray:
         """Whether each point (n, 3) lies within ``limit`` of the surface, (n,) bool (exact).
 
-        ``bound`` is :meth:`nearest_bound` of the points with a cap ≥ ``limit``;
-        ``workers`` as there.
+        ``bound`` is :meth:`nearest_bound` of the points with a cap ≥ ``limit``.
         """
         p = np.asarray(points, dtype=float).reshape(-1, 3)
-        d0 = self.nearest_bound(p, limit, workers) if bound is None else bound
+        d0 = self.nearest_bound(p, limit) if bound is None else bound
         out = d0 <= limit
         band = np.flatnonzero(~out & (d0 - self.cover <= limit))
-        out[band] = self._exact(p[band], np.full(len(band), limit + self.cover),
-                                workers) <= limit
+        out[band] = self._exact(p[band], np.full(len(band), limit + self.cover)) <= limit
         return out
 
     def distance(self, points: np.ndarray, limit: float, bound: np.ndarray | None = None
