@@ -119,10 +119,10 @@ class _Chunks:
     def layer(self, i: int) -> tuple[tuple[Shell, float], tuple[Zones, float, float]]:
         """Layer i's timed shell and zones, once its chunk is in."""
         j = bisect.bisect_right(self.bounds, i) - 1
-        done = self.results[j]
-        if done is None:
-            done = self.results[j] = self._wait(j)
-        return done[0][i - self.bounds[j]], done[1][i - self.bounds[j]]
+        got = self.results[j]
+        if got is None:
+            got = self.results[j] = self._wait(j)
+        return got[0][i - self.bounds[j]], got[1][i - self.bounds[j]]
 
     def _wait(self, j: int) -> Staged:
         chunk = self.chunks[j]
@@ -170,7 +170,8 @@ def start_stages(layers: list[LayerPlane], settings: ProcessSettings, grounded: 
                  bases: list[ChildBase], procs: Executor | None,
                  min_layers: int = CHUNK_MIN_LAYERS) -> Stages | None:
     """Stages 1 and 2 of a sub-part of ``min_layers`` layers or more, started by chunks in
-    ``procs`` (:func:`layer_processes`), to be read by :func:`build_layers`; ``None`` for a
+    ``procs`` (:func:`layer_processes`), to be read by
+    :func:`~slicer.subpart_paths.build_layers`; ``None`` for a
     shorter sub-part, without ``procs`` or when the pool is broken (the threads then do it).
 
     The planner starts them as soon as the sub-part is marched, so the workers compute while
