@@ -67,3 +67,33 @@ def test_a_failing_slicer_drops_the_chunks_not_started() -> None:
         raise RuntimeError("no plane")
     assert all(f.done() for f in queued)
     assert sum(f.cancelled() for f in queued) >= 30
+
+
+@pytest.mark.timeout(30)
+def test_a_layer_is_read_once_its_own_chunk_is_in() -> None:
+    """Stage 3 reads a layer as soon as its chunk is in, not after the last chunk; a chunk
+    whose worker died is computed by the reader, once."""
+    from concurrent.futures import Future
+    from concurrent.futures.process import BrokenProcessPool
+
+    from slicer.layer_workers import _Chunks
+
+    def chunk(lo: int, hi: int, tag: str):  # type: ignore[no-untyped-def]
+        return ([(f"{tag} shell {i}", 0.0) for i in range(lo, hi)],
+                [(f"{tag} zones {i}", 0.0, 0.0) for i in range(lo, hi)])
+
+    first, second = Future(), Future()
+    computed: list[tuple[int, int]] = []
+
+    def compute(lo: int, hi: int):  # type: ignore[no-untyped-def]
+        computed.append((lo, hi))
+        return chunk(lo, hi, "here")
+
+    read = _Chunks([0, 2, 5], [first, second], compute)
+    first.set_result(chunk(0, 2, "worker"))
+    assert read.layer(1) == (("worker shell 1", 0.0), ("worker zones 1", 0.0, 0.0))
+    assert not second.done()  # it did not wait for the other chunk
+    second.set_exception(BrokenProcessPool("a worker died"))
+    assert read.layer(4)[0] == ("here shell 4", 0.0)
+    assert read.layer(2)[1] == ("here zones 2", 0.0, 0.0)
+    assert computed == [(2, 5)]

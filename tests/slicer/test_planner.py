@@ -374,6 +374,37 @@ def test_plan_does_not_depend_on_threads_or_processes(leaning, monkeypatch) -> N
         _assert_same_paths(plans[0], other)
 
 
+def test_a_long_sub_part_is_sent_to_the_workers_before_the_next_is_marched(
+        leaning, monkeypatch) -> None:
+    """The workers compute a marched sub-part's shells and zones while the planner marches
+    the sub-parts after it."""
+    from slicer import layer_workers, planner
+
+    if (os.cpu_count() or 1) < 2:
+        pytest.skip("worker processes need two cores")
+    events: list[tuple[str, int]] = []
+    march = planner._slice_subpart
+
+    def marched(index, *args, **kwargs):  # type: ignore[no-untyped-def]
+        events.append(("march", index))
+        return march(index, *args, **kwargs)
+
+    def staged(layers, *args):  # type: ignore[no-untyped-def]
+        events.append(("workers", len(layers)))
+        return REAL_STAGED(layers, *args)
+
+    monkeypatch.setattr(planner, "_slice_subpart", marched)
+    monkeypatch.setattr(layer_workers, "_staged_in_processes", staged)
+    monkeypatch.setattr(planner, "layer_processes",
+                        lambda longest: layer_workers.layer_processes(longest, min_layers=1))
+    monkeypatch.setattr(planner, "start_stages",
+                        functools.partial(layer_workers.start_stages, min_layers=1))
+    plan = plan_print(leaning, S, G, Printhead.default())
+    kinds = [kind for kind, _ in events]
+    assert len(plan.subparts) >= 2
+    assert kinds == ["march", "workers"] * len(plan.subparts)  # each at once, in turn
+
+
 def _assert_same_paths(one, other) -> None:  # type: ignore[no-untyped-def]
     pairs = [(a, b) for sa, sb in zip(one.subparts, other.subparts, strict=True)
              for la, lb in zip(sa.layers, sb.layers, strict=True)
