@@ -226,7 +226,8 @@ def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, 
     seconds : dict
         CPU seconds of "toolpaths" (shells, fill, order, lift) and "zones".
     """
-    shells, zones = staged or _on_threads(layers, settings, grounded, bases, pool)
+    shells, zones = (staged if staged is not None
+                     else _on_threads(layers, settings, grounded, bases, pool))
     job = LayerJob(layers, shells, settings, grounded, bases)
     seconds = {"toolpaths": 0.0, "zones": 0.0}
     out, t = timed(_order_and_lift, index, job, zones, poses, seconds)
