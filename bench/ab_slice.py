@@ -86,6 +86,9 @@ def main() -> None:
     if args.base is None:
         print("nothing to compare: give --base CHECKOUT (another version of this repository)")
         return
+    if not (args.base / "slicer" / "pipeline.py").is_file():
+        sys.exit(f"--base {args.base}: not a checkout of this repository "
+                 "(no slicer/pipeline.py)")
     runs: dict[str, list[dict[str, Any]]] = {"base": [], "this": []}
     for _ in range(args.rounds):
         for tag, checkout in (("base", args.base.resolve()), ("this", HERE.parents[1])):
