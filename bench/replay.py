@@ -21,6 +21,7 @@ from harness import MODELS, check_models
 
 from kinematics.machine import MachineGeometry
 from slicer.gcode_reader import ParsedGcode, parse_lines
+from slicer.hugepages import small_pages
 from slicer.mesh_io import place_on_platform, repair
 from slicer.pipeline import slice_model
 from slicer.printhead import Printhead
@@ -82,7 +83,8 @@ def main() -> None:
     for name in args.models:
         for planar in (False, True) if args.planar else (False,):
             parsed, mesh = sliced(name, args.height, planar, args.cache, args.fresh)
-            rep, wall, cpu, tw, tc = best_stages(parsed, mesh, args.repeat, args.threads)
+            with small_pages():  # as in a slice (slicer.pipeline.slice_model)
+                rep, wall, cpu, tw, tc = best_stages(parsed, mesh, args.repeat, args.threads)
             kind = "planar" if planar else "5-axis"
             print(f"{name} {args.height:.2f} {kind}: {rep.points} samples, {args.threads} "
                   f"thread(s), best of {args.repeat}: {tw:.2f} s wall, {tc:.2f} s CPU")
