@@ -141,21 +141,9 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
     t0 = time.perf_counter()
     head = head or Printhead.default()
     timings: dict[str, float] = {}
-    with small_pages():
+    with small_pages(), ThreadPoolExecutor(1, "replay-index") as early:
         mesh, placement = _load(mesh_or_path, settings.nozzle_diameter, build_volume)
         timings["load"] = time.perf_counter() - t0
-        return _slice_placed(mesh, placement, settings, geometry, head, decompose_settings,
-                             platform_radius, planar, build_volume, check, keep_plan,
-                             timings, t0)
-
-
-def _slice_placed(mesh: trimesh.Trimesh, placement: np.ndarray, settings: ProcessSettings,
-                  geometry: MachineGeometry, head: Printhead, decompose_settings: object | None,
-                  platform_radius: float, planar: bool, build_volume: np.ndarray | None,
-                  check: bool, keep_plan: bool, timings: dict[str, float], t0: float
-                  ) -> SliceResult:
-    """:func:`slice_model` of a placed mesh."""
-    with ThreadPoolExecutor(1, "replay-index") as early:
         # the replay's model index needs only the placed mesh: built on the second core
         # while the decomposition and the layers (mostly one thread) are computed
         index = early.submit(model_index, mesh, settings.line_width) if check else None

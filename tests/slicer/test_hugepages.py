@@ -52,3 +52,20 @@ def test_an_explicit_numpy_setting_decides(monkeypatch) -> None:
             assert _current() is True
     finally:
         switch(old)
+
+
+def test_overlapping_blocks_restore_after_the_last(monkeypatch) -> None:
+    """Two slices at once (two threads): off until both end, then the first one's setting."""
+    monkeypatch.delenv(ENV, raising=False)
+    assert switch is not None
+    old = switch(True)
+    first, second = small_pages(), small_pages()
+    try:
+        first.__enter__()
+        second.__enter__()
+        first.__exit__(None, None, None)
+        assert _current() is False  # the second slice is still running
+        second.__exit__(None, None, None)
+        assert _current() is True
+    finally:
+        switch(old)
