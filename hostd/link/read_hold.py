@@ -12,6 +12,10 @@ moment later, for the reply then due). So when replies come slowly (the firmware
 not the wire, sets the pace) the port is read the moment a reply arrives. Receive buffers
 too small to hold more than one reply's worth of lines get no holds at all
 (:func:`hostd.link.transport.read_hold`).
+
+The holds last a millisecond or two, so they need asyncio's own loop: uvloop (tried on
+2026-12-02 with ``bench/daemon.py``) rounds its timers to whole milliseconds, and the holds
+then collected fewer replies per read and the daemon spent more CPU, not less.
 """
 
 from __future__ import annotations
