@@ -18,6 +18,7 @@ are the CPU seconds of the threads inside it (on two cores they add up to more t
 from __future__ import annotations
 
 import argparse
+import contextlib
 import pickle
 from pathlib import Path
 
@@ -31,13 +32,20 @@ from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 
+try:  # as in a slice (slicer.pipeline.slice_model); a checkout before it has no switch
+    from slicer.hugepages import small_pages
+except ImportError:
+    small_pages = contextlib.nullcontext
+
 STAGES = ("sections", "skeleton", "layers", "zones", "toolpaths", "obstacles", "paths")
 
 
 def plan_once(dec: Decomposition) -> PrintPlan:
     """One plan from cold caches (the skeleton and solid caches are cleared first)."""
     planner.clear_caches()
-    return planner.plan_print(dec, ProcessSettings(), MachineGeometry(), Printhead.default())
+    with small_pages():
+        return planner.plan_print(dec, ProcessSettings(), MachineGeometry(),
+                                  Printhead.default())
 
 
 def decomposition(name: str, mesh: trimesh.Trimesh, cache: Path | None) -> Decomposition:
