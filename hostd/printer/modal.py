@@ -8,10 +8,16 @@ rebuild the state by replaying the file up to it.
 from __future__ import annotations
 
 import functools
+import re
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 AXES = ("X", "Y", "Z", "A", "C")
+# a run of plain moves, one per line, each word a letter and a number float() reads as
+# words() does: these change only positions, E and F (see ModalState.apply_many)
+_PLAIN_MOVES = re.compile(r"(?:G[01](?: [XYZACEF][-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+))*\n)*")
+_E_WORD = re.compile(r" E([^ \n]+)(?=[^E\n]*\n)")  # a move's last E word, as in words()
 
 
 def words(command: str) -> tuple[str, dict[str, float]]:
@@ -62,6 +68,36 @@ class ModalState:
         handler = _HANDLERS.get(code)
         if handler is not None:
             handler(self, args)
+
+    def apply_many(self, commands: Sequence[str]) -> None:
+        """:meth:`apply` each command in order, with the same result to the last bit.
+
+        A batch of plain ``G0``/``G1`` moves in absolute mode (nearly every batch a print
+        streams) is read with a few string searches over the joined text instead of a
+        word split per line: an axis ends at its last value, and E is summed move by move
+        as :meth:`apply` does.
+        """
+        if not commands:
+            return
+        text = "\n".join(commands) + "\n"
+        if not (self.absolute and _PLAIN_MOVES.fullmatch(text)):
+            for command in commands:
+                self.apply(command)
+            return
+        position = self.position
+        for axis in AXES:
+            value = _last_value(text, " " + axis)
+            if value is not None:
+                position[axis] = value
+        feedrate = _last_value(text, " F")
+        if feedrate is not None:
+            self.feedrate = feedrate
+        e, extruded, relative = position["E"], self.extruded, not self.e_absolute
+        for word in _E_WORD.findall(text):
+            new = e + float(word) if relative else float(word)
+            extruded += new - e
+            e = new
+        position["E"], self.extruded = e, extruded
 
     def _move(self, args: dict[str, float]) -> None:
         for axis in AXES:
@@ -172,6 +208,18 @@ class ModalState:
                 f"G0 X{p['X']:.4f} Y{p['Y']:.4f} F{travel_f:.0f}",
                 f"G0 Z{p['Z']:.4f} F{lift_f:.0f}"]
         return out + self.mode_commands()
+
+
+def _last_value(text: str, key: str) -> float | None:
+    """The number after the last ``key`` (e.g. ``" X"``) in ``text``, whose words end at a
+    blank or a newline; ``None`` if there is none."""
+    start = text.rfind(key)
+    if start < 0:
+        return None
+    start += len(key)
+    end = text.find(" ", start)
+    newline = text.find("\n", start)
+    return float(text[start:newline if end < 0 or newline < end else end])
 
 
 _HANDLERS = {

@@ -105,8 +105,7 @@ class Program:
     def modal_before(self, index: int) -> ModalState:
         """The modal state the file leaves before command ``index`` runs."""
         state = ModalState()
-        for cmd in self.commands[:index]:
-            state.apply(cmd)
+        state.apply_many(self.commands[:index])
         return state
 
 

@@ -118,9 +118,8 @@ class Streamer:
     def _catch_up(self) -> None:
         """Apply the commands acknowledged since the last call to the modal state (the
         streamer does so once per batch of acknowledgements, a reader whenever it reads)."""
-        commands, state = self.program.commands, self._modal
-        for index in range(self._modal_upto, self.acked):
-            state.apply(commands[index])
+        if self.acked > self._modal_upto:
+            self._modal.apply_many(self.program.commands[self._modal_upto:self.acked])
         self._modal_upto = self.acked
 
     # -- control (from the job manager) --------------------------------------------------
