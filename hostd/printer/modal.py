@@ -72,18 +72,30 @@ class ModalState:
     def apply_many(self, commands: Sequence[str]) -> None:
         """:meth:`apply` each command in order, with the same result to the last bit.
 
-        A batch of plain ``G0``/``G1`` moves in absolute mode (nearly every batch a print
-        streams) is read with a few string searches over the joined text instead of a
-        word split per line: an axis ends at its last value, and E is summed move by move
-        as :meth:`apply` does.
+        Runs of plain ``G0``/``G1`` moves in absolute mode (nearly every line a print
+        streams) are read with a few string searches over their joined text instead of a
+        word split per line (:meth:`_plain_moves`); the other commands one by one.
         """
-        if not commands:
-            return
         text = "\n".join(commands) + "\n"
-        if not (self.absolute and _PLAIN_MOVES.fullmatch(text)):
+        if text.count("\n") != len(commands):  # a command of several lines: one by one
             for command in commands:
                 self.apply(command)
             return
+        pos = index = 0
+        while index < len(commands):
+            end = _plain_run_end(text, pos) if self.absolute else pos
+            if end > pos:
+                self._plain_moves(text[pos:end])
+                index += text.count("\n", pos, end)
+                pos = end
+            else:
+                self.apply(commands[index])
+                pos += len(commands[index]) + 1
+                index += 1
+
+    def _plain_moves(self, text: str) -> None:
+        """Apply ``text``, plain moves one per line (each ending in a newline): an axis ends
+        at its last value, and E is summed move by move as :meth:`_move` does."""
         position = self.position
         for axis in AXES:
             value = _last_value(text, " " + axis)
@@ -208,6 +220,12 @@ class ModalState:
                 f"G0 X{p['X']:.4f} Y{p['Y']:.4f} F{travel_f:.0f}",
                 f"G0 Z{p['Z']:.4f} F{lift_f:.0f}"]
         return out + self.mode_commands()
+
+
+def _plain_run_end(text: str, pos: int) -> int:
+    """Where the run of plain moves starting at ``pos`` in ``text`` ends (``pos``: none)."""
+    run = _PLAIN_MOVES.match(text, pos)
+    return run.end() if run else pos
 
 
 def _last_value(text: str, key: str) -> float | None:

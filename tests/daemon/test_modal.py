@@ -19,7 +19,7 @@ _MOVE = st.tuples(st.sampled_from(["G1", "G0", "G01", "g1"]),
                   st.lists(_WORD, max_size=5)).map(lambda m: " ".join([m[0], *m[1]]))
 _OTHER = st.sampled_from(["G90", "G91", "M82", "M83", "G92 E0", "G92 X5 E1.5", "G28",
                           "G28 X", "M104 S200", "M140 S60", "M106 S128", "M107",
-                          "G1  X1", "G1 X", "M117 hello E5"])
+                          "G1  X1", "G1 X", "M117 hello E5", "G1 X1\nG1 E2"])
 _COMMAND = st.one_of(_MOVE, _MOVE, _MOVE, _OTHER)
 
 
