@@ -272,7 +272,7 @@ class JobManager:
         try:
             job = self.store.get(job_id)
             program = await self._load_program(job)
-            start, modal, prelude = self._resume_point(job, program, scope)
+            start, modal, prelude = await self._resume_point(job, program, scope)
         except Exception:
             self._resume_request = None
             raise
@@ -281,15 +281,19 @@ class JobManager:
         await self._run(job, start, modal, prelude, program=program,
                         note=f"resumed from {scope} at line {start}")
 
-    def _resume_point(self, job: Job, program: Program, scope: str
-                      ) -> tuple[int, ModalState, list[str]]:
+    async def _resume_point(self, job: Job, program: Program, scope: str
+                            ) -> tuple[int, ModalState, list[str]]:
+        """The command to resume from, the modal state before it and the restart prelude.
+
+        The modal state is rebuilt by reading the file up to that command, on a thread: the
+        event loop (status calls, other clients) does not wait for a long file to be read."""
         if scope == "checkpoint":
             cp = self.store.last_checkpoint(job.id)
             start = cp.line if cp is not None else program.resume_index(job.acked_lines,
                                                                           "subpart")
         else:
             start = program.resume_index(min(job.acked_lines, max(program.total - 1, 0)), scope)
-        modal = program.modal_before(start)
+        modal = await asyncio.to_thread(program.modal_before, start)
         s = self.settings
         prelude = [] if start == 0 else modal.restart_commands(
             min(s.z_max, modal.position["Z"] + s.safe_height), s.travel_f, s.rotary_f, s.lift_f)
