@@ -26,7 +26,7 @@ import trimesh
 from kinematics.machine import MachineGeometry
 from slicer.gcode_reader import GcodeFormatError, ParsedGcode, read_gcode
 from slicer.printhead import Printhead
-from slicer.replay_collide import Collision, find_collisions
+from slicer.replay_collide import find_collisions
 from slicer.replay_coverage import coverage
 from slicer.replay_geometry import ModelIndex
 from slicer.replay_kdtree import point_tree
@@ -175,13 +175,16 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
             mesh, w, placement))
         lengths = move_lengths(parsed)
         dep_f = st.submit("sample", lambda: _deposits(parsed, geo, lengths, bead_area, w, t))
+        # the head's samples need no deposits: taken while the deposits are sampled
+        tips_f = st.submit("head samples", lambda: _head_samples(parsed, geo, lengths,
+                                                                 bead_area))
         tree_f = st.submit("tree", lambda: point_tree(dep_f.result()[1].p), dep_f)
         wall_f = st.submit("wall", lambda: _wall(model_f.result(), dep_f.result()[1].p, w),
                            model_f, dep_f)
         ok_f = st.submit("support", lambda: strict_support(
             dep_f.result()[1], t, w, radius, tree_f.result()), tree_f)
-        hit_f = st.submit("collisions", lambda: _collisions(
-            parsed, geo, lengths, bead_area, dep_f.result()[1], head, radius), dep_f)
+        hit_f = st.submit("collisions", lambda: find_collisions(
+            parsed, *tips_f.result(), dep_f.result()[1], head, radius), tips_f, dep_f)
         cov_f = st.submit("coverage", lambda: coverage(
             model_f.result(), dep_f.result()[1], w, t, int(proc["perimeters"]),
             proc["infill_density"], tree_f.result()), model_f, tree_f)
@@ -236,14 +239,14 @@ def _wall(model: ModelIndex, points: np.ndarray, line_width: float
     return bound, model.within(points, WALL_SLACK * line_width, bound)
 
 
-def _collisions(parsed: ParsedGcode, geo: MachineGeometry,
-                lengths: tuple[np.ndarray, np.ndarray], bead_area: float, deposits: Samples,
-                head: Printhead, radius: float) -> tuple[int, list[Collision]]:
-    """:func:`~slicer.replay_collide.find_collisions` of the head sampled along every move."""
+def _head_samples(parsed: ParsedGcode, geo: MachineGeometry,
+                  lengths: tuple[np.ndarray, np.ndarray], bead_area: float
+                  ) -> tuple[Samples, Samples]:
+    """The head sampled along every move for :func:`~slicer.replay_collide.find_collisions`:
+    (near samples for the nozzle, far ones for the carriage)."""
     moved = map_moves(parsed, geo, positioned_moves(parsed, lengths), lengths, bead_area)
-    near = sample_moves(parsed, geo, moved, TIP_SPACING, TIP_ANGLE, ends=True)
-    far = sample_moves(parsed, geo, moved, FAR_TIP_SPACING, TIP_ANGLE, ends=True)
-    return find_collisions(parsed, near, far, deposits, head, radius)
+    return (sample_moves(parsed, geo, moved, TIP_SPACING, TIP_ANGLE, ends=True),
+            sample_moves(parsed, geo, moved, FAR_TIP_SPACING, TIP_ANGLE, ends=True))
 
 
 def _bridging(model: ModelIndex, s: Samples, ok: np.ndarray, wall: np.ndarray,
