@@ -14,6 +14,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 AXES = ("X", "Y", "Z", "A", "C")
+JOIN_LINES = 4096  # commands joined into one text by ModalState.apply_many
 # a run of plain moves, one per line, each word a letter and a number float() reads as
 # words() does: these change only positions, E and F (see ModalState.apply_many)
 _PLAIN_MOVES = re.compile(r"(?:G[01](?: [XYZACEF][-+]?(?:[0-9]+(?:\.[0-9]*)?|\.[0-9]+))*\n)*")
@@ -74,8 +75,13 @@ class ModalState:
 
         Runs of plain ``G0``/``G1`` moves in absolute mode (nearly every line a print
         streams) are read with a few string searches over their joined text instead of a
-        word split per line (:meth:`_plain_moves`); the other commands one by one.
+        word split per line (:meth:`_plain_moves`); the other commands one by one. A long
+        file (a resume) is joined :data:`JOIN_LINES` commands at a time, not all at once.
         """
+        for start in range(0, len(commands), JOIN_LINES):
+            self._apply_joined(commands[start:start + JOIN_LINES])
+
+    def _apply_joined(self, commands: Sequence[str]) -> None:
         text = "\n".join(commands) + "\n"
         if text.count("\n") != len(commands):  # a command of several lines: one by one
             for command in commands:

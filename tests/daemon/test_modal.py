@@ -64,3 +64,14 @@ def test_a_long_batch_that_is_not_all_moves_falls_back_at_once() -> None:
     state.apply_many(batch)
     assert state.snapshot() == _per_line(batch, ModalState()).snapshot()
     assert state.hotend == 200.0
+
+
+def test_a_long_file_is_joined_in_parts_with_the_same_state(monkeypatch) -> None:
+    from hostd.printer import modal
+
+    monkeypatch.setattr(modal, "JOIN_LINES", 3)
+    commands = ["M83", "G1 X1 E0.5", "G1 Y2 E0.25", "G91", "G1 X1 E1", "G90", "M82",
+                "G1 Z3 E4", "G1 E5 F900", "M106 S10", "G0 A1 C2"]
+    state = ModalState()
+    state.apply_many(commands)
+    assert repr(state.snapshot()) == repr(_per_line(commands, ModalState()).snapshot())
