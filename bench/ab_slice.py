@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 HERE = Path(__file__).resolve()
-FIGURES = ("wall", "cpu", "plan", "gcode", "read", "replay", "steal")
+FIGURES = ("wall", "cpu", "plan", "gcode", "text", "read", "replay", "steal")
 
 
 def _steal_s() -> float:
@@ -54,7 +54,8 @@ def one(model: str, height: float) -> dict[str, Any]:
                       Printhead.default())
     out: dict[str, Any] = {"wall": time.perf_counter() - wall, "cpu": cpu_seconds() - cpu,
                               "steal": _steal_s() - steal}
-    out.update({k: res.timings.get(k, 0.0) for k in ("plan", "gcode", "read", "replay")})
+    out.update({k: res.timings.get(k, 0.0)
+                for k in ("plan", "gcode", "text", "read", "replay")})
     out["md5"] = hashlib.md5("\n".join(res.lines).encode()).hexdigest()[:10]
     return out
 

@@ -8,7 +8,8 @@ planar (A = C = 0, no decomposition). Printed: seconds per stage, total wall and
 filament and time of both prints and the decrement (the paper's Table 1). Target: pipe3-50k
 at 0.2 mm in under 10 s. On a shared machine the wall time also measures the neighbours, so
 the CPU time (with the worker processes') is printed beside it. ``paths`` is the toolpath
-part of ``plan``.
+part of ``plan``; ``gcode`` builds the program's moves, ``text`` (the estimate and the
+formatted lines) runs on a thread beside ``read`` and ``replay``.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from slicer.pipeline import SliceResult, slice_model
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 
-STAGES = ("load", "plan", "plan.paths", "gcode", "read", "replay")  # plan.paths: in plan
+STAGES = ("load", "plan", "plan.paths", "gcode", "text", "read", "replay")  # paths: in plan
 
 
 def run(mesh: trimesh.Trimesh, height: float, planar: bool, repeat: int

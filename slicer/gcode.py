@@ -297,17 +297,55 @@ def build_program(plan: PrintPlan, settings: ProcessSettings,
     return w.prog, w.transitions, safe_z
 
 
+@dataclass
+class Draft:
+    """A file's moves before its text: what a reader of moves needs is ready at once, the
+    estimate and the text come from :meth:`finish`.
+
+    :meth:`words` gives the file as :meth:`GcodeResult.words` will, but the
+    ``;HOSTD_ESTIMATE`` header holds zeros (every other header, and every line's number, is
+    the final one). :meth:`finish` only reads the program, so it may run on another thread
+    while the moves are read: the slicer formats the text beside its replay check.
+    """
+
+    plan: PrintPlan
+    settings: ProcessSettings
+    machine: MachineSetup
+    program: Program
+    transitions: list[dict[str, object]]
+
+    def words(self) -> Iterator[str | MoveWords]:
+        """Raw lines and numeric move blocks (for :func:`slicer.gcode_reader.parse_words`),
+        with a zero estimate."""
+        yield from header_lines(self.settings, self.machine, self.plan.placement,
+                                Estimate(0.0, 0.0, 0.0))
+        yield from self.program.words()
+
+    def finish(self) -> GcodeResult:
+        """The estimate, the headers and the text of the whole file."""
+        limits = MotionLimits.from_settings(self.settings)
+        estimate = estimate_program(self.program.blocks(), limits,
+                                    filament_area(self.settings), PLA_DENSITY)
+        lines = header_lines(self.settings, self.machine, self.plan.placement, estimate)
+        header = len(lines)
+        lines.extend(self.program.lines())
+        return GcodeResult(lines, estimate, self.transitions, header, self.program)
+
+
+def draft(plan: PrintPlan, settings: ProcessSettings,
+          machine: MachineSetup | None = None) -> Draft:
+    """The program of the whole file (:func:`build_program`), its word table computed
+    (so two threads may read it)."""
+    machine = machine or MachineSetup()
+    prog, transitions, _ = build_program(plan, settings, machine)
+    prog.table()
+    return Draft(plan, settings, machine, prog, transitions)
+
+
 def generate(plan: PrintPlan, settings: ProcessSettings,
              machine: MachineSetup | None = None) -> GcodeResult:
     """The whole file: headers, start G-code, sub-parts with transitions, end G-code."""
-    machine = machine or MachineSetup()
-    prog, transitions, _ = build_program(plan, settings, machine)
-    limits = MotionLimits.from_settings(settings)
-    estimate = estimate_program(prog.blocks(), limits, filament_area(settings), PLA_DENSITY)
-    lines = header_lines(settings, machine, plan.placement, estimate)
-    header = len(lines)
-    lines.extend(prog.lines())
-    return GcodeResult(lines, estimate, transitions, header, prog)
+    return draft(plan, settings, machine).finish()
 
 
 def gcode_lines(plan: PrintPlan, settings: ProcessSettings,
@@ -322,6 +360,6 @@ def write_gcode(path: str | FsPath, lines: Iterable[str]) -> None:
     FsPath(path).write_text(text + "\n", encoding="ascii")
 
 
-__all__: Sequence[str] = ("GcodeError", "GcodeResult", "MachineSetup", "build_program",
-                          "filament_area", "gcode_lines", "generate", "header_lines",
-                          "path_extrusion", "write_gcode")
+__all__: Sequence[str] = ("Draft", "GcodeError", "GcodeResult", "MachineSetup",
+                          "build_program", "draft", "filament_area", "gcode_lines", "generate",
+                          "header_lines", "path_extrusion", "write_gcode")

@@ -8,15 +8,17 @@ picklable result. A file whose replay finds a head collision is refused
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import trimesh
 
 from kinematics.machine import MachineGeometry
-from slicer.gcode import MachineSetup, generate
+from slicer.gcode import Draft, MachineSetup, draft
 from slicer.gcode_reader import parse_words
 from slicer.hugepages import small_pages
 from slicer.plan import PrintPlan
@@ -25,6 +27,8 @@ from slicer.replay import model_index, replay_check
 from slicer.replay_coverage import shell_depth, shell_grid
 from slicer.replay_geometry import ModelIndex
 from slicer.settings import ProcessSettings
+
+T = TypeVar("T")
 
 
 class SliceError(ValueError):
@@ -167,26 +171,46 @@ def _with_grid(index: Future[ModelIndex], settings: ProcessSettings) -> ModelInd
 def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
             setup: MachineSetup, index: Future[ModelIndex] | None, timings: dict[str, float],
             t0: float, keep_plan: bool) -> SliceResult:
-    """G-code for ``plan`` and, when ``index`` is given, its replay check."""
+    """G-code for ``plan`` and, when ``index`` is given, its replay check.
+
+    The replay reads the program's numbers, so the estimate and the text are computed on a
+    thread of their own meanwhile (mostly numpy: the replay loses little of the GIL to it).
+    """
     t1 = time.perf_counter()
-    res = generate(plan, settings, setup)
+    moves = draft(plan, settings, setup)
     timings["gcode"] = time.perf_counter() - t1
     report: dict[str, object] = {}
-    if index is not None:
-        t1 = time.perf_counter()
-        parsed = parse_words(res.words())
-        timings["read"] = time.perf_counter() - t1
-        t1 = time.perf_counter()
-        rep = replay_check(parsed, mesh, setup.head, setup.platform_radius, placed=True,
-                           index=index.result())
-        timings["replay"] = time.perf_counter() - t1
-        report = rep.to_dict()
-        if not rep.ok:
-            first = rep.collision_messages[0] if rep.collision_messages else ""
-            raise CollisionError(f"replay found {rep.collisions} head collision(s); refusing "
-                                 f"to write the file: {first}")
+    if index is None:
+        res = _timed(moves.finish, timings, "text")
+    else:
+        with ThreadPoolExecutor(1, "gcode-text") as writer:
+            text = writer.submit(_timed, moves.finish, timings, "text")
+            report = _replayed(moves, mesh, setup, index, timings)
+            res = text.result()
     return SliceResult(res.lines, len(plan.subparts),
                        sum(len(sp.layers) for sp in plan.subparts), _thickness(plan),
                        res.estimate.header(), report, res.transitions,
                        {**{f"plan.{k}": v for k, v in plan.timings.items()}, **timings},
                        time.perf_counter() - t0, plan if keep_plan else None)
+
+
+def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:
+    """``fn()``, its wall seconds recorded as ``timings[name]``."""
+    t1 = time.perf_counter()
+    try:
+        return fn()
+    finally:
+        timings[name] = time.perf_counter() - t1
+
+
+def _replayed(moves: Draft, mesh: trimesh.Trimesh, setup: MachineSetup,
+              index: Future[ModelIndex], timings: dict[str, float]) -> dict[str, object]:
+    """The replay report of ``moves``; raises :class:`CollisionError` if the head hits."""
+    parsed = _timed(lambda: parse_words(moves.words()), timings, "read")
+    rep = _timed(lambda: replay_check(parsed, mesh, setup.head, setup.platform_radius,
+                                      placed=True, index=index.result()), timings, "replay")
+    if not rep.ok:
+        first = rep.collision_messages[0] if rep.collision_messages else ""
+        raise CollisionError(f"replay found {rep.collisions} head collision(s); refusing "
+                             f"to write the file: {first}")
+    return rep.to_dict()

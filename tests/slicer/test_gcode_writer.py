@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ from handmade_plans import H, W, box_plan, two_part_plan
 from kinematics.machine import MachineGeometry
 from kinematics.transform import forward, inverse
 from slicer.extrusions import forward_at
-from slicer.gcode import MachineSetup, generate, path_extrusion
+from slicer.gcode import MachineSetup, draft, generate, path_extrusion
 from slicer.gcode_format import DECIMALS, format_moves, format_moves_reference
 from slicer.gcode_reader import parse_lines, parse_words
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
@@ -195,6 +196,21 @@ def test_numeric_moves_parse_as_their_text(start):
     plan, _ = _clean_two_part()
     res = generate(plan, s, MachineSetup(GEO))
     _same_parse(parse_lines(res.lines), parse_words(res.words()))
+
+
+def test_a_draft_reads_as_its_finished_file_but_for_the_estimate():
+    """The slicer replays a draft while its text is formatted on another thread: the moves,
+    markers, line numbers and every header but the estimate must be the file's."""
+    plan, _ = _clean_two_part()
+    moves = draft(plan, SETTINGS, MachineSetup(GEO))
+    early = parse_words(moves.words())
+    with ThreadPoolExecutor(1) as writer:
+        res = writer.submit(moves.finish).result()
+    final = parse_lines(res.lines)
+    assert res.lines == generate(plan, SETTINGS, MachineSetup(GEO)).lines
+    assert early.headers["ESTIMATE"]["time_s"] == 0.0 < final.headers["ESTIMATE"]["time_s"]
+    early.headers["ESTIMATE"] = final.headers["ESTIMATE"]
+    _same_parse(final, early)
 
 
 def test_bulk_move_text_is_the_percent_format_of_each_word():
