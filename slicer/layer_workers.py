@@ -2,7 +2,7 @@
 :mod:`slicer.subpart_paths` for the stages).
 
 A sub-part of :data:`CHUNK_MIN_LAYERS` layers or more (the root of a branched part holds most
-of them) has its shells and zones computed in forked worker processes, by chunks of
+of them, its branches tens) has its shells and zones computed in forked worker processes, by chunks of
 consecutive layers (a chunk also computes the shell of the layer after its last, which stage 2
 reads): threads gain nothing there, as the Python between the GEOS calls holds the GIL. The
 planner starts the chunks as soon as the sub-part is marched (:func:`start_stages`): the
@@ -47,7 +47,7 @@ from slicer.subpart_paths import (
 )
 from slicer.toolpaths import Shell, shell
 
-CHUNK_MIN_LAYERS = 100  # a sub-part with this many layers has stages 1-2 in processes
+CHUNK_MIN_LAYERS = 20  # a sub-part with this many layers has stages 1-2 in processes
 CHUNKS_PER_PROCESS = 3  # chunks of layers per worker process: evens out unequal chunks
 PR_SET_PDEATHSIG = 1  # prctl(2): a signal for this process when its parent dies
 
