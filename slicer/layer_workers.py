@@ -2,9 +2,10 @@
 :mod:`slicer.subpart_paths` for the stages).
 
 A sub-part of :data:`CHUNK_MIN_LAYERS` layers or more (the root of a branched part holds most
-of them, its branches tens) has its shells and zones computed in forked worker processes, by chunks of
-consecutive layers (a chunk also computes the shell of the layer after its last, which stage 2
-reads): threads gain nothing there, as the Python between the GEOS calls holds the GIL. The
+of them, its branches tens) has its shells and zones computed in forked worker processes, by
+chunks of consecutive layers (a chunk also computes the shell of the layer after its last,
+which stage 2 reads): threads gain nothing there, as the Python between the GEOS calls holds
+the GIL. The
 planner starts the chunks as soon as the sub-part is marched (:func:`start_stages`): the
 workers take no GIL from the marching of the sub-parts after it. Stage 3 reads each layer
 once its own chunk is in, not after the last chunk.
