@@ -7,7 +7,8 @@ and once with this checkout (STL to checked G-code, as ``hostctl slice`` does, c
 cleared), each in a fresh process with that checkout first on ``PYTHONPATH``. On a shared VM
 the speed drifts by a fifth within minutes, so only alternation compares two versions; the
 kernel's steal time of each run is printed to tell the slow spells. Printed per run: wall,
-CPU (workers included), the stages, steal and an MD5 of the G-code (same MD5: same output);
+CPU (workers included), the stages, steal, the peak RSS of the slicing process (``rss``, MiB,
+its worker processes not included) and an MD5 of the G-code (same MD5: same output);
 then the mean and median of each figure per version. Without ``--base`` it says so and exits.
 """
 
@@ -17,6 +18,7 @@ import argparse
 import hashlib
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -25,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 HERE = Path(__file__).resolve()
-FIGURES = ("wall", "cpu", "plan", "gcode", "text", "read", "replay", "steal")
+FIGURES = ("wall", "cpu", "plan", "gcode", "text", "read", "replay", "steal", "rss")
 
 
 def _steal_s() -> float:
@@ -56,6 +58,7 @@ def one(model: str, height: float) -> dict[str, Any]:
                               "steal": _steal_s() - steal}
     out.update({k: res.timings.get(k, 0.0)
                 for k in ("plan", "gcode", "text", "read", "replay")})
+    out["rss"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB → MiB
     out["md5"] = hashlib.md5("\n".join(res.lines).encode()).hexdigest()[:10]
     return out
 
