@@ -68,10 +68,24 @@ def _projected_section(layer: LayerPlane, base: ChildBase) -> BaseGeometry:
         base.section, [m[0, 0], m[0, 1], m[1, 0], m[1, 1], m[0, 2], m[1, 2]])
 
 
+def _strip_misses(layer: LayerPlane, base: ChildBase, lo: float, hi: float) -> bool:
+    """Whether the layer region's bounding box lies wholly outside lo ≤ (x − b)·n_b ≤ hi (so
+    the region does too): most layers of a parent are far from its children's bases."""
+    nb = base.frame[2]
+    gx, gy = float(layer.frame[0] @ nb), float(layer.frame[1] @ nb)
+    d0 = float((layer.origin - base.origin) @ nb)
+    x0, y0, x1, y1 = layer.region.bounds
+    low = d0 + min(gx * x0, gx * x1) + min(gy * y0, gy * y1)
+    high = d0 + max(gx * x0, gx * x1) + max(gy * y0, gy * y1)
+    return high < lo or low > hi
+
+
 def interface_zone(layer: LayerPlane, base: ChildBase, depth: float, t: float,
                    width: float) -> BaseGeometry:
     """The solid zone of a parent layer under one child's base (possibly empty)."""
     if abs(float(base.frame[2] @ layer.frame[2])) < MIN_COS or layer.region.is_empty:
+        return shapely.Polygon()
+    if _strip_misses(layer, base, -depth, t):
         return shapely.Polygon()
     strip = _strip(layer, base, -depth, t)
     if not strip.intersects(layer.region):
