@@ -5,10 +5,9 @@ A sub-part of :data:`CHUNK_MIN_LAYERS` layers or more (the root of a branched pa
 of them, its branches tens) has its shells and zones computed in forked worker processes, by
 chunks of consecutive layers (a chunk also computes the shell of the layer after its last,
 which stage 2 reads): threads gain nothing there, as the Python between the GEOS calls holds
-the GIL. The
-planner starts the chunks as soon as the sub-part is marched (:func:`start_stages`): the
-workers take no GIL from the marching of the sub-parts after it. Stage 3 reads each layer
-once its own chunk is in, not after the last chunk.
+the GIL. The planner starts the chunks as soon as the sub-part is marched
+(:func:`start_stages`): the workers take no GIL from the marching of the sub-parts after it.
+Stage 3 reads each layer once its own chunk is in, not after the last chunk.
 
 The workers are forked (:func:`layer_processes`; a forked child has the parent's modules and
 only runs shapely and numpy here), die with the slicer, and compute with the same calls as a

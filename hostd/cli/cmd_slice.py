@@ -104,8 +104,19 @@ def _summary(r: Any, out: Path, seconds: float) -> None:
               f"(walls {100 * rep['wall_supported']:.2f}%, "
               f"{len(rep['unsupported_wall_layers'])} unsupported wall layers), "
               f"collisions {rep['collisions']}")
-    stages = ", ".join(f"{k} {v:.2f}" for k, v in r.timings.items() if "." not in k)
-    print(f"seconds {seconds:.2f} ({stages})")
+    print(f"seconds {seconds:.2f} ({_stages(r.timings)})")
+
+
+def _stages(timings: dict[str, float]) -> str:
+    """The top-level stages in pipeline order; the text is formatted beside the replay."""
+    order = ("load", "plan", "gcode", "read", "replay")
+    out = [f"{k} {timings[k]:.2f}" for k in order if k in timings]
+    out += [f"{k} {v:.2f}" for k, v in timings.items()
+            if "." not in k and k not in order and k != "text"]
+    if "text" in timings:
+        out.append(f"text {timings['text']:.2f} beside the replay" if "replay" in timings
+                   else f"text {timings['text']:.2f}")
+    return ", ".join(out)
 
 
 def _hms(s: float) -> str:

@@ -30,6 +30,10 @@ def test_slice_writes_checked_gcode_and_summary(stl, tmp_path, capsys):
     for word in ("sub-parts 1", "layers", "filament", "time", "replay: inside",
                  "collisions 0", "seconds"):
         assert word in text
+    stages = text.split("seconds ", 1)[1]
+    named = [part.split()[0] for part in stages.split("(", 1)[1].rstrip(")\n").split(", ")]
+    assert named == ["load", "plan", "gcode", "read", "replay", "text"]
+    assert "text " in stages and "beside the replay" in stages
 
 
 @pytest.mark.parametrize(("args", "message"), [
