@@ -16,10 +16,11 @@ too small to hold more than one reply's worth of lines get no holds at all
 The holds last a millisecond or two, so they need asyncio's own loop: uvloop (tried on
 2026-12-02 with ``bench/daemon.py``) rounds its timers to whole milliseconds, and the holds
 then collected fewer replies per read and the daemon spent more CPU, not less. asyncio's
-epoll loop rounds its waits up to the next millisecond too, and the shares above are tuned
-with that: a ``select()`` loop, whose waits are exact to the microsecond, collected 1.36–1.51
-lines per read against 1.88–1.89 (two alternate runs each, later that day) and the daemon
-spent 10.4–11.1 % of a core streaming against 9.0–9.3 %, with the share at 0.7 or 0.85.
+epoll loop also waits in whole milliseconds, rounded up, and the shares above are tuned with
+that: a ``select()`` loop, whose waits are exact to the microsecond, collected 1.36–1.51
+lines per read against epoll's 1.88–1.89, and the daemon spent 10.4–11.1 % of a core
+streaming against 9.0–9.3 % (later that day, alternate runs: ``select()`` twice each with
+the share at 0.7 and 0.85, epoll twice at 0.7).
 """
 
 from __future__ import annotations
