@@ -37,11 +37,17 @@ class ChildBase:
     section: BaseGeometry
 
 
+def _height(layer: LayerPlane, base: ChildBase) -> tuple[float, float, float]:
+    """(x − b)·n_b over the layer plane as ``d0 + gx·x + gy·y`` of its 2D coordinates:
+    (gx, gy, d0)."""
+    nb = base.frame[2]
+    return (float(layer.frame[0] @ nb), float(layer.frame[1] @ nb),
+            float((layer.origin - base.origin) @ nb))
+
+
 def _strip(layer: LayerPlane, base: ChildBase, lo: float, hi: float) -> BaseGeometry:
     """Points of the layer plane (2D) with lo ≤ (x − b)·n_b ≤ hi."""
-    nb = base.frame[2]
-    gx, gy = layer.frame[0] @ nb, layer.frame[1] @ nb
-    d0 = float((layer.origin - base.origin) @ nb)
+    gx, gy, d0 = _height(layer, base)
     g = np.hypot(gx, gy)
     x0, y0, x1, y1 = layer.region.bounds
     big = 2.0 * (abs(x0) + abs(x1) + abs(y0) + abs(y1)) + 10.0
@@ -71,9 +77,7 @@ def _projected_section(layer: LayerPlane, base: ChildBase) -> BaseGeometry:
 def _strip_misses(layer: LayerPlane, base: ChildBase, lo: float, hi: float) -> bool:
     """Whether the layer region's bounding box lies wholly outside lo ≤ (x − b)·n_b ≤ hi (so
     the region does too): most layers of a parent are far from its children's bases."""
-    nb = base.frame[2]
-    gx, gy = float(layer.frame[0] @ nb), float(layer.frame[1] @ nb)
-    d0 = float((layer.origin - base.origin) @ nb)
+    gx, gy, d0 = _height(layer, base)
     x0, y0, x1, y1 = layer.region.bounds
     low = d0 + min(gx * x0, gx * x1) + min(gy * y0, gy * y1)
     high = d0 + max(gx * x0, gx * x1) + max(gy * y0, gy * y1)
