@@ -91,25 +91,30 @@ def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", a, b)
 
 
-def platform_support(s: Samples, dmax: np.ndarray, radius: float, slack: float) -> np.ndarray:
-    """Samples with the platform plane within reach beneath them, (n,) bool."""
-    uz = s.u[:, 2]
-    t = np.where(uz > 1e-9, s.p[:, 2] / np.where(uz > 1e-9, uz, 1.0), np.inf)
-    foot = s.p[:, :2] - t[:, None] * s.u[:, :2]
+def platform_support(p: np.ndarray, u: np.ndarray, dmax: np.ndarray, radius: float,
+                     slack: float) -> np.ndarray:
+    """Points (n, 3) with axes ``u`` (n, 3) that have the platform plane within reach
+    ``dmax`` (n,) beneath them, (n,) bool."""
+    uz = u[:, 2]
+    t = np.where(uz > 1e-9, p[:, 2] / np.where(uz > 1e-9, uz, 1.0), np.inf)
+    foot = p[:, :2] - t[:, None] * u[:, :2]
     return (t >= -1e-6) & (t <= dmax) & (np.linalg.norm(foot, axis=1) <= radius + slack)
 
 
 def strict_support(s: Samples, layer_height: float, line_width: float,
-                   platform_radius: float, tree: cKDTree | None = None) -> np.ndarray:
-    """The support rule for every sample, (n,) bool.
+                   platform_radius: float, tree: cKDTree | None = None,
+                   judged: np.ndarray | None = None) -> np.ndarray:
+    """The support rule for the samples ``judged`` (indices, (m,); all when ``None``), with
+    every sample's bead as material beneath: (m,) bool.
 
     Candidates are the ``NEIGHBOURS`` samples nearest a point one layer height beneath each
     sample along its axis (where supporting material lies); material of the same or later
     layers is farther from there, so the nearest candidates are the supporting ones.
     """
+    judged = np.arange(len(s)) if judged is None else judged
     dmax = depth_limit(s, layer_height)
     slack = LATERAL_SLACK * line_width
-    ok = platform_support(s, dmax, platform_radius, slack)
+    ok = platform_support(s.p[judged], s.u[judged], dmax[judged], platform_radius, slack)
     if len(s) < 2:
         return ok
     reach = float(dmax.max())
@@ -118,13 +123,14 @@ def strict_support(s: Samples, layer_height: float, line_width: float,
     tree = tree or point_tree(s.p)
     todo = np.flatnonzero(~ok)
     for k in (1, min(NEIGHBOURS, len(s))):  # the nearest candidate settles most samples
-        _, idx = tree.query(s.p[todo] - s.u[todo] * layer_height, k=k,
+        top = judged[todo]
+        _, idx = tree.query(s.p[top] - s.u[top] * layer_height, k=k,
                             distance_upper_bound=r, workers=-1)
         idx = idx.reshape(len(todo), k)
         valid = idx < len(s)
         below = np.where(valid, idx, 0)
-        top = np.repeat(todo[:, None], k, axis=1)
-        hit = valid & _check(s, top.ravel(), below.ravel(), dmax, slack,
+        tops = np.repeat(top[:, None], k, axis=1)
+        hit = valid & _check(s, tops.ravel(), below.ravel(), dmax, slack,
                              0.5 * line_width).reshape(valid.shape)
         ok[todo] = hit.any(axis=1)
         todo = todo[~ok[todo]]
@@ -158,11 +164,12 @@ def bridged(s: Samples, candidates: np.ndarray, layer_height: float, line_width:
     return out
 
 
-def bad_wall_layers(s: Samples, wall: np.ndarray, supported: np.ndarray) -> list[int]:
-    """Layers (print order) where more than 5 % of wall points are unsupported."""
+def bad_wall_layers(seq: np.ndarray, wall: np.ndarray, supported: np.ndarray) -> list[int]:
+    """Layers (print order) where more than 5 % of wall points are unsupported: ``seq``,
+    ``wall`` and ``supported`` (m,) are the judged points' layers and masks."""
     if not wall.any():
         return []
-    seq = s.seq[wall]
+    seq = seq[wall]
     n_seq = int(seq.max()) + 2
     total = np.bincount(seq + 1, minlength=n_seq)
     bad = np.bincount(seq[~supported[wall]] + 1, minlength=n_seq)

@@ -7,13 +7,15 @@ import pytest
 from handmade_plans import H, box_plan, frame, prism_layers, prism_mesh, two_part_plan
 
 from kinematics.machine import MachineGeometry
-from slicer import replay_collide
+from slicer import replay, replay_collide
 from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import parse_lines
 from slicer.plan import PrintPlan, SubpartPlan
 from slicer.replay import model_index, replay_check
 from slicer.replay_coverage import shell_depth, shell_grid
 from slicer.replay_geometry import ModelIndex
+from slicer.replay_samples import geometry_from_header, move_lengths
+from slicer.replay_support import strict_support
 from slicer.samples import to_manifold, to_trimesh
 from slicer.settings import ProcessSettings
 
@@ -182,3 +184,44 @@ def test_inside_test_with_coarse_lines_casts_rays_near_the_surface():
     near = np.isfinite(model.distance(p, 1.0 / np.sqrt(2.0)))
     assert near.sum() > 500  # many points are left to the rays
     assert np.array_equal(model.inside(p), truth)
+
+
+def _overhang_step():
+    plan = box_plan(GEO, n_layers=20, shift=(2.0, 0.0), shift_from=10)
+    mesh = _union(prism_mesh(np.zeros(3), UP, 5.0, 10 * H),
+                  prism_mesh(np.array([2.0, 0.0, 10 * H]), UP, 5.0, 10 * H))
+    return plan, mesh
+
+
+def test_support_judged_on_some_samples_is_theirs_of_every_sample():
+    """Judging a subset changes which points are judged, never a point's verdict: every
+    sample's bead still counts as material beneath."""
+    plan, _ = _overhang_step()
+    parsed = parse_lines(generate(plan, ProcessSettings(), MachineSetup(GEO)).lines)
+    p = ProcessSettings()
+    bead_area = np.pi * p.filament_diameter ** 2 / 4.0 / p.line_width
+    _, s = replay._deposits(parsed, geometry_from_header(parsed), move_lengths(parsed),
+                            bead_area, p.line_width, p.layer_height)
+    every = strict_support(s, p.layer_height, p.line_width, 150.0)
+    assert 0 < (~every).sum() < len(s)  # verdicts of both kinds
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        some = np.sort(rng.choice(len(s), size=len(s) // 3, replace=False))
+        judged = strict_support(s, p.layer_height, p.line_width, 150.0, judged=some)
+        assert np.array_equal(judged, every[some])
+
+
+def test_judging_every_second_sample_gives_the_figures_of_every_sample(monkeypatch):
+    plan, mesh = _overhang_step()
+    reps = []
+    for stride in (1, replay.JUDGE_STRIDE):
+        monkeypatch.setattr(replay, "JUDGE_STRIDE", stride)
+        reps.append(_replay(plan, mesh).to_dict())
+    every, judged = reps
+    assert replay.JUDGE_STRIDE == 2
+    assert every["points"] == judged["points"]
+    assert abs(judged["wall_points"] / every["wall_points"] - 0.5) < 0.01
+    assert every["supported"] < 0.99  # the figures under comparison are not trivial
+    for key in ("inside", "supported", "bridged", "wall_supported"):
+        assert abs(judged[key] - every[key]) < 0.002, key
+    assert judged["unsupported_wall_layers"] == every["unsupported_wall_layers"]
