@@ -284,14 +284,18 @@ def _inside_share(model: ModelIndex, points: np.ndarray, bound: np.ndarray, slac
 
     ``bound`` is the points' :meth:`~ModelIndex.nearest_bound`. The column test is exact
     for points farther than ``model.inside_pitch / √2`` from the surface; with that below
-    ``slack`` every closer point counts through the slack, so no ray is cast.
+    ``slack`` every closer point counts through the slack, so no ray is cast, and only the
+    points the column test puts outside need their distance to the surface.
     """
     if len(points) == 0:
         return 1.0
-    near = np.isfinite(model.distance(points, slack, bound))
     if model.inside_pitch / math.sqrt(2.0) > slack:
+        near = np.isfinite(model.distance(points, slack, bound))
         return float(np.mean(model.inside(points) | near))
-    return float(np.mean(model.parity_inside(points) | near))
+    ok = model.parity_inside(points)
+    out = np.flatnonzero(~ok)
+    ok[out] = np.isfinite(model.distance(points[out], slack, bound[out]))
+    return float(np.mean(ok))
 
 
 def _layer_name(s: Samples, seq: int) -> str:
