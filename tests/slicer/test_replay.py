@@ -225,3 +225,21 @@ def test_judging_every_second_sample_gives_the_figures_of_every_sample(monkeypat
     for key in ("inside", "supported", "bridged", "wall_supported"):
         assert abs(judged[key] - every[key]) < 0.002, key
     assert judged["unsupported_wall_layers"] == every["unsupported_wall_layers"]
+
+
+def test_inside_share_is_the_share_of_judged_samples_inside_or_near_the_model():
+    """Beads laid 0.4 mm beyond a narrower box: the share agrees with the box's own distance
+    function on the judged samples (inside, or within the slack of its surface)."""
+    p = ProcessSettings()
+    plan = box_plan(GEO, half=5.0, n_layers=20)
+    mesh = prism_mesh(np.zeros(3), UP, 4.6, 20 * H)
+    parsed = parse_lines(generate(plan, p, MachineSetup(GEO)).lines)
+    rep = replay_check(parsed, mesh)
+    bead_area = np.pi * p.filament_diameter ** 2 / 4.0 / p.line_width
+    _, s = replay._deposits(parsed, geometry_from_header(parsed), move_lengths(parsed),
+                            bead_area, p.line_width, p.layer_height)
+    q = s.p[::replay.JUDGE_STRIDE] - np.array([0.0, 0.0, 10 * H])
+    beyond = np.maximum(np.abs(q) - np.array([4.6, 4.6, 10 * H]), 0.0)
+    expected = np.mean(np.linalg.norm(beyond, axis=1) <= replay.INSIDE_SLACK * p.line_width)
+    assert 0.5 < expected < 0.95  # some beads lie outside, most inside
+    assert rep.inside == pytest.approx(expected, abs=1e-9)
