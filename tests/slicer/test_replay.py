@@ -186,6 +186,13 @@ def test_inside_test_with_coarse_lines_casts_rays_near_the_surface():
     assert np.array_equal(model.inside(p), truth)
 
 
+def _deposit_samples(parsed, p: ProcessSettings):
+    """The replay's deposited samples of a parsed file printed with ``p``."""
+    bead_area = np.pi * p.filament_diameter ** 2 / 4.0 / p.line_width
+    return replay._deposits(parsed, geometry_from_header(parsed), move_lengths(parsed),
+                            bead_area, p.line_width, p.layer_height)[1]
+
+
 def _overhang_step():
     plan = box_plan(GEO, n_layers=20, shift=(2.0, 0.0), shift_from=10)
     mesh = _union(prism_mesh(np.zeros(3), UP, 5.0, 10 * H),
@@ -199,9 +206,7 @@ def test_support_judged_on_some_samples_is_theirs_of_every_sample():
     plan, _ = _overhang_step()
     parsed = parse_lines(generate(plan, ProcessSettings(), MachineSetup(GEO)).lines)
     p = ProcessSettings()
-    bead_area = np.pi * p.filament_diameter ** 2 / 4.0 / p.line_width
-    _, s = replay._deposits(parsed, geometry_from_header(parsed), move_lengths(parsed),
-                            bead_area, p.line_width, p.layer_height)
+    s = _deposit_samples(parsed, p)
     every = strict_support(s, p.layer_height, p.line_width, 150.0)
     assert 0 < (~every).sum() < len(s)  # verdicts of both kinds
     rng = np.random.default_rng(11)
@@ -235,9 +240,7 @@ def test_inside_share_is_the_share_of_judged_samples_inside_or_near_the_model():
     mesh = prism_mesh(np.zeros(3), UP, 4.6, 20 * H)
     parsed = parse_lines(generate(plan, p, MachineSetup(GEO)).lines)
     rep = replay_check(parsed, mesh)
-    bead_area = np.pi * p.filament_diameter ** 2 / 4.0 / p.line_width
-    _, s = replay._deposits(parsed, geometry_from_header(parsed), move_lengths(parsed),
-                            bead_area, p.line_width, p.layer_height)
+    s = _deposit_samples(parsed, p)
     q = s.p[::replay.JUDGE_STRIDE] - np.array([0.0, 0.0, 10 * H])
     beyond = np.maximum(np.abs(q) - np.array([4.6, 4.6, 10 * H]), 0.0)
     expected = np.mean(np.linalg.norm(beyond, axis=1) <= replay.INSIDE_SLACK * p.line_width)
