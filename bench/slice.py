@@ -9,7 +9,8 @@ filament and time of both prints and the decrement (the paper's Table 1). Target
 at 0.2 mm in under 10 s. On a shared machine the wall time also measures the neighbours, so
 the CPU time (with the worker processes') is printed beside it. ``paths`` is the toolpath
 part of ``plan``; ``gcode`` builds the program's moves, ``text`` (the estimate and the
-formatted lines) runs on a thread beside ``read`` and ``replay``.
+formatted lines) runs on a thread beside ``read`` and ``replay``. The slices run in this
+process, its imports done: :mod:`cli_slice` times whole ``hostctl slice`` processes.
 """
 
 from __future__ import annotations
