@@ -258,7 +258,8 @@ def _head_samples(parsed: ParsedGcode, geo: MachineGeometry,
 
 
 def judged_samples(n: int) -> np.ndarray:
-    """Indices of the samples judged (inside, support, walls) of ``n`` deposited ones."""
+    """Indices of the samples judged (inside, support, walls) of ``n`` deposited ones: those
+    of the slice ``[::JUDGE_STRIDE]``, which the stages take of the sample arrays."""
     return np.arange(0, n, JUDGE_STRIDE)
 
 

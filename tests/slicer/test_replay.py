@@ -217,13 +217,13 @@ def test_support_judged_on_some_samples_is_theirs_of_every_sample():
 
 
 def test_judging_every_second_sample_gives_the_figures_of_every_sample(monkeypatch):
+    assert replay.JUDGE_STRIDE == 2  # the shipped stride (read before it is patched below)
     plan, mesh = _overhang_step()
     reps = []
     for stride in (1, replay.JUDGE_STRIDE):
         monkeypatch.setattr(replay, "JUDGE_STRIDE", stride)
         reps.append(_replay(plan, mesh).to_dict())
     every, judged = reps
-    assert replay.JUDGE_STRIDE == 2
     assert every["points"] == judged["points"]
     assert abs(judged["wall_points"] / every["wall_points"] - 0.5) < 0.01
     assert every["supported"] < 0.99  # the figures under comparison are not trivial
