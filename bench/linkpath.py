@@ -2,9 +2,11 @@
 
 Run: ``.venv/bin/python bench/linkpath.py [--lines N] [--by-function]``.
 
-A fake port answers every complete line with one ``ok``, each in a loop iteration of its own
-(as each ``ok`` is a wake-up of its own on a real port); the streamer reads its modal state
-every 30 lines, as a status poll at 20 Hz does at 250000 baud. Printed:
+A fake port answers the complete lines of each write with one ``ok`` each, handed over
+together on a later loop turn (as the ``ok`` that one read of a real port finds: about two at
+250000 baud with the read hold, ``bench/daemon.py``'s ``acked_lines_per_read``; ``--per-read
+1`` hands each ``ok`` over on a turn of its own); the streamer reads its modal state every 30
+lines, as a status poll at 20 Hz does at 250000 baud. Printed:
 
 - ``bytecodes_per_line``: Python bytecodes executed per line (a trace count, the same on
   every run and every machine: it moves only when the code does);
@@ -42,17 +44,31 @@ STATUS_EVERY = 30  # lines between two reads of the modal state (20 Hz at ~600 l
 
 
 class AnsweringTransport:
-    """Takes the link's bytes; every complete line earns one ``ok`` on a later loop turn."""
+    """Takes the link's bytes; every complete line earns one ``ok``, handed over on a later
+    loop turn ``per_read`` at a time (or after a millisecond, when fewer are due)."""
 
-    def __init__(self, receiver: LineReceiver, loop: asyncio.AbstractEventLoop) -> None:
-        self.receiver, self.loop = receiver, loop
+    def __init__(self, receiver: LineReceiver, loop: asyncio.AbstractEventLoop,
+                 per_read: int) -> None:
+        self.receiver, self.loop, self.per_read = receiver, loop, per_read
         self.partial = b""
+        self.due = 0  # oks earned and not handed over
+        self.late: asyncio.TimerHandle | None = None
         self.closing = False
 
     def write(self, data: bytes) -> None:
         *lines, self.partial = (self.partial + data).split(b"\n")
-        for _ in lines:
-            self.loop.call_soon(self.receiver.data_received, b"ok\n")
+        self.due += len(lines)
+        if self.due >= self.per_read:
+            self.loop.call_soon(self.receiver.data_received, b"ok\n" * self.due)
+            self.due = 0
+        elif self.due and self.late is None:
+            self.late = self.loop.call_later(0.001, self.hand_over)
+
+    def hand_over(self) -> None:
+        self.late = None
+        if self.due:
+            self.receiver.data_received(b"ok\n" * self.due)
+            self.due = 0
 
     def is_closing(self) -> bool:
         return self.closing
@@ -61,14 +77,15 @@ class AnsweringTransport:
         self.closing = True
 
 
-async def stream(text: str, tracer: Callable[..., Any] | None = None) -> tuple[float, int]:
+async def stream(text: str, per_read: int,
+                 tracer: Callable[..., Any] | None = None) -> tuple[float, int]:
     """Stream ``text`` through the real link and streamer: (seconds, lines)."""
     cfg = defaults()
     loop = asyncio.get_running_loop()
 
     async def opener(*_: object) -> Connection:
         receiver = LineReceiver()
-        return Connection(AnsweringTransport(receiver, loop), receiver)  # type: ignore[arg-type]
+        return Connection(AnsweringTransport(receiver, loop, per_read), receiver)  # type: ignore[arg-type]
 
     link = SerialLink(link_settings_from_config(cfg), opener=opener)
     await link.connect()
@@ -91,7 +108,7 @@ async def stream(text: str, tracer: Callable[..., Any] | None = None) -> tuple[f
     return seconds, program.total
 
 
-def count_bytecodes(text: str) -> tuple[Counter[str], int]:
+def count_bytecodes(text: str, per_read: int) -> tuple[Counter[str], int]:
     """Bytecodes executed while streaming ``text``, by function; and the line count."""
     counts: Counter[str] = Counter()
 
@@ -102,7 +119,7 @@ def count_bytecodes(text: str) -> tuple[Counter[str], int]:
             counts[f"{Path(code.co_filename).name}:{code.co_name}"] += 1
         return tracer
 
-    _, lines = asyncio.run(stream(text, tracer))
+    _, lines = asyncio.run(stream(text, per_read, tracer))
     return counts, lines
 
 
@@ -110,12 +127,14 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--layers", type=int, default=40, help="layers of 200 lines (default 40)")
     ap.add_argument("--by-function", action="store_true", help="the 25 costliest functions")
+    ap.add_argument("--per-read", type=int, default=2,
+                    help="replies handed over together (default 2, as the live daemon reads)")
     args = ap.parse_args()
     text = synthetic_gcode(subparts=1, layers=args.layers, per_layer=200)
-    runs = [asyncio.run(stream(text)) for _ in range(3)]
+    runs = [asyncio.run(stream(text, args.per_read)) for _ in range(3)]
     lines = runs[0][1]
-    counts, _ = count_bytecodes(text)
-    print(f"linkpath bench: {lines} lines, one ok each, no port")
+    counts, _ = count_bytecodes(text, args.per_read)
+    print(f"linkpath bench: {lines} lines, one ok each, {args.per_read} per read, no port")
     print(f"{'bytecodes_per_line':28} {sum(counts.values()) / lines:10.1f}")
     print(f"{'warm_us_per_line':28} {1e6 * min(s for s, _ in runs) / lines:10.2f}")
     if args.by_function:
