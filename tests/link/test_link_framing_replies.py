@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import random
+
 import pytest
 
-from hostd.link.framing import checksum, encode, frame, strip_gcode
+from hostd.link.framing import FOLD_BYTES, checksum, encode, frame, framed, strip_gcode
 from hostd.link.replies import (
     Banner,
     Busy,
@@ -31,6 +33,26 @@ def test_frame_matches_the_well_known_m110_line() -> None:
 def test_checksum_is_the_xor_of_the_bytes() -> None:
     assert checksum("") == 0
     assert checksum("N1 G28") == ord("N") ^ ord("1") ^ ord(" ") ^ ord("G") ^ ord("2") ^ ord("8")
+
+
+def _xor_each(text: str) -> int:
+    cs = 0
+    for b in text.encode("ascii", "replace"):
+        cs ^= b
+    return cs
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_folded_checksum_matches_a_byte_by_byte_xor(seed: int) -> None:
+    """Random texts around and beyond the fold's 128 bytes, every length up to three folds;
+    non-ASCII characters go out as ``?``."""
+    rng = random.Random(seed)
+    for length in range(3 * FOLD_BYTES + 2):
+        text = "".join(chr(rng.choice((rng.randrange(32, 127), rng.randrange(1, 300))))
+                       for _ in range(length))
+        assert checksum(text) == _xor_each(text), (seed, length)
+        number = rng.randrange(10 ** rng.randrange(1, 8))
+        assert framed(number, text) == encode(frame(number, text))
 
 
 @pytest.mark.parametrize(("raw", "expected"), [
