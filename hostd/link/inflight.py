@@ -6,7 +6,7 @@ from collections import deque
 from dataclasses import dataclass
 
 
-@dataclass
+@dataclass(slots=True)
 class Item:
     """One command to transmit: its submission number and, once sent, its line number."""
 
@@ -17,7 +17,7 @@ class Item:
     data: bytes = b""
 
 
-@dataclass
+@dataclass(slots=True)
 class Sent:
     """One transmission of an item (a resent line is transmitted more than once)."""
 
