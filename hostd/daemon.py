@@ -21,6 +21,7 @@ import signal
 import socket
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -61,6 +62,9 @@ class LinkPort:
 
     def submit(self, command: str) -> asyncio.Future[int]:
         return self.link.submit(command)
+
+    def submit_many(self, commands: Sequence[str]) -> tuple[int, asyncio.Future[int]]:
+        return self.link.submit_many(commands)
 
     async def query(self, command: str) -> tuple[Reply, ...]:
         return (await self.link.query(command),)

@@ -15,7 +15,7 @@ import asyncio
 import contextlib
 import time
 from collections import deque
-from collections.abc import AsyncIterator, Awaitable, Callable, Iterable
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Sequence
 from typing import Any
 
 from hostd.link import errors
@@ -129,6 +129,23 @@ class SerialLink:
         if actions:  # mostly none: the line waits for credit
             self._apply(actions)
         return fut
+
+    def submit_many(self, commands: Sequence[str]) -> tuple[int, asyncio.Future[int]]:
+        """Queue stripped commands (at least one) in order with one future for them all.
+
+        Returns the submission number of the first (the others follow it) and a future that
+        gives the last's once it is acked. The future fails as :meth:`submit`'s do; the
+        error's ``last_acked`` tells how many of the commands were acknowledged before.
+        """
+        if not commands:
+            raise ValueError("submit_many needs at least one command")
+        first, actions = self.protocol.submit_many(commands, self._now())
+        assert self._loop is not None
+        fut: asyncio.Future[int] = self._loop.create_future()
+        self._lines.append((first + len(commands) - 1, fut))
+        if actions:
+            self._apply(actions)
+        return first, fut
 
     async def send(self, command: str) -> int:
         """Send one command and wait for its ``ok``; returns its submission number."""

@@ -67,11 +67,12 @@ acts only on complete lines, so nothing else goes on the wire until the line is 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 from hostd.link import errors
 from hostd.link.actions import Acked, Action, Answer, Connected, Failed, Write
-from hostd.link.framing import encode, frame
+from hostd.link.framing import encode, framed
 from hostd.link.inflight import InFlight, Item, Sent
 from hostd.link.observed import Observed
 from hostd.link.replies import (
@@ -138,6 +139,21 @@ class Protocol:
             # which only replies and time give back (and both pump)
             self._pump(now)
         return self._seq, self._flush()
+
+    def submit_many(self, commands: Sequence[str], now: float) -> tuple[int, list[Action]]:
+        """:meth:`submit` each of ``commands`` (lines, at least one) in order; returns the
+        submission number of the first (the others follow it)."""
+        if self.state != "ready":
+            raise errors.NotConnected(f"link is {self.state}", self.last_acked)
+        first = self._seq + 1
+        pending = self._pending
+        idle = not pending and not self._resend
+        for seq, command in enumerate(commands, first):
+            pending.append(Item(command, seq, "line"))
+        self._seq = first + len(commands) - 1
+        if idle:
+            self._pump(now)
+        return first, self._flush()
 
     def receive(self, line: str, now: float) -> list[Action]:
         """Handle one line received from the firmware."""
@@ -318,7 +334,7 @@ class Protocol:
         if number is None:
             number = item.number = self._next
             self._next += 1
-            item.data = encode(frame(number, item.command))
+            item.data = framed(number, item.command)
             self._history[number] = item
         if self._sent_max <= self._executed and not self._inflight:
             self._progress = now

@@ -15,10 +15,11 @@ import asyncio
 import logging
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
+from hostd.link.errors import LinkError
 from hostd.link.replies import Ok, Position, Reply, Temperatures
 from hostd.printer.errors import PrinterError, TransitionFailed
 from hostd.printer.modal import ModalState
@@ -32,6 +33,13 @@ class Port(Protocol):
 
     def submit(self, command: str) -> asyncio.Future[Any]:
         """Queue one line (never blocks); the future completes when it is acknowledged."""
+        ...
+
+    def submit_many(self, commands: Sequence[str]) -> tuple[int, asyncio.Future[Any]]:
+        """Queue lines in order (never blocks): the submission number of the first, and a
+        future that completes when the last is acknowledged. If the link fails first, the
+        future raises the link's :class:`~hostd.link.errors.LinkError`, whose
+        ``last_acked`` is the last submission number acknowledged."""
         ...
 
     async def query(self, command: str) -> tuple[Reply, ...]:
@@ -68,6 +76,17 @@ class Hooks:
     event: Callable[[str, dict[str, Any]], None] = lambda name, data: None
 
 
+@dataclass(slots=True)
+class Batch:
+    """Program commands ``start`` .. ``stop - 1``, submitted together: the first's submission
+    number and the future of the last's acknowledgement."""
+
+    start: int
+    stop: int
+    first: int
+    done: asyncio.Future[Any]
+
+
 @dataclass
 class StreamStats:
     transitions: int = 0
@@ -101,7 +120,7 @@ class Streamer:
         self.stats = StreamStats()
         self.paused_modal: ModalState | None = None
         self.pause_reason = ""
-        self._inflight: deque[tuple[int, asyncio.Future[Any]]] = deque()
+        self._inflight: deque[Batch] = deque()
         self._pause_req = asyncio.Event()
         self._resume = asyncio.Event()
         self._cancel = asyncio.Event()
@@ -171,33 +190,47 @@ class Streamer:
         """Submit commands ``index`` .. ``end - 1`` in order; returns the next one to submit,
         ``end`` unless ``stoppable`` and a pause or cancel was asked for.
 
-        When ``lookahead`` lines are out, it sleeps until a quarter of them are acknowledged
-        (one wake-up per batch, not per ``ok``), then takes note of every acknowledged line.
+        Commands go out in batches of a quarter of ``lookahead``, each with one future for its
+        last line: when ``lookahead`` lines are out, it sleeps until the oldest batch is
+        acknowledged (one wake-up per batch, not per ``ok``), then takes note of every
+        acknowledged batch.
         """
-        inflight, commands, submit = self._inflight, self.program.commands, self.port.submit
-        lookahead = self.settings.lookahead
-        batch = max(1, lookahead // 4)
+        inflight, commands = self._inflight, self.program.commands
+        submit_many = self.port.submit_many
+        size = max(1, self.settings.lookahead // 4)
+        batches = max(1, self.settings.lookahead // size)
         while index < end and not (stoppable and self._stop_asked):
-            inflight.append((index, submit(commands[index])))
-            index += 1
-            excess = len(inflight) - lookahead
-            if excess > 0:
-                await _settled(inflight[excess + batch - 2][1])
-            if inflight[0][1].done():
-                while inflight and inflight[0][1].done():
+            stop = min(end, index + size)
+            first, fut = submit_many(commands[index:stop])
+            inflight.append(Batch(index, stop, first, fut))
+            index = stop
+            if len(inflight) > batches:
+                await _settled(inflight[0].done)
+            if inflight[0].done.done():
+                while inflight and inflight[0].done.done():
                     self._ack_head()
                 self._catch_up()  # here, not in a status call that would hold the loop
         return index
 
     def _ack_head(self) -> None:
-        """Take note of the (done) oldest line; raises the link's error if it failed."""
-        index, fut = self._inflight[0]
-        fut.result()
+        """Take note of the (done) oldest batch; raises the link's error if it failed, after
+        taking note of the lines of the batch acknowledged before the failure."""
+        batch = self._inflight[0]
+        try:
+            batch.done.result()
+        except LinkError as err:
+            done = min(max(0, err.last_acked - batch.first + 1), batch.stop - batch.start)
+            self._acked_to(batch.start + done)
+            raise
         self._inflight.popleft()
-        self.acked = index + 1
-        if index >= self._next_layer:
-            self._track_layer(index)
+        self._acked_to(batch.stop)
         self.hooks.progress(self)
+
+    def _acked_to(self, stop: int) -> None:
+        """Commands up to ``stop - 1`` are acknowledged: follow the layer to the last."""
+        self.acked = stop
+        if stop > self._next_layer:
+            self._track_layer(stop - 1)
 
     def _track_layer(self, index: int) -> None:
         self._next_layer = self.program.next_layer_start(index)
@@ -212,7 +245,7 @@ class Streamer:
 
     async def _drain(self) -> None:
         while self._inflight:
-            await _settled(self._inflight[0][1])
+            await _settled(self._inflight[0].done)
             self._ack_head()
 
     async def _extra(self, command: str) -> None:
@@ -317,9 +350,12 @@ class Streamer:
         if bad:
             raise TransitionFailed("position read back " + ", ".join(bad), tr.target, measured)
 
+    def _inflight_lines(self) -> int:
+        return self._inflight[-1].stop - self.acked if self._inflight else 0
+
     def status(self) -> dict[str, Any]:
         return {"state": self.state, "acked": self.acked, "total": self.program.total,
-                "subpart": self.subpart, "layer": self.layer, "inflight": len(self._inflight),
+                "subpart": self.subpart, "layer": self.layer, "inflight": self._inflight_lines(),
                 "a": self.modal.position["A"], "c": self.modal.position["C"],
                 "transitions": self.stats.transitions,
                 "transition_failures": self.stats.transition_failures,

@@ -4,6 +4,7 @@ import asyncio
 
 import pytest
 
+from hostd.link.errors import LinkLost, NotConnected
 from hostd.link.replies import HeaterReading, Position, Temperatures
 from hostd.printer.modal import ModalState
 from hostd.printer.program import parse_program
@@ -55,11 +56,49 @@ class FakePort:
         asyncio.get_running_loop().call_soon(fut.set_result, None)
         return fut
 
+    def submit_many(self, commands: list[str]) -> tuple[int, asyncio.Future[None]]:
+        first = len(self.log) + 1
+        futs = [self.submit(c) for c in commands]
+        return first, futs[-1]
+
     async def query(self, command: str):
         self.log.append(command)
         if command == "M114":
             return (Position({k: self.fw.position[k] for k in "XYZAC"}),)
         return (Temperatures({"T": HeaterReading(self.fw.hotend, self.fw.hotend)}),)
+
+
+class FailingPort(FakePort):
+    """Acknowledges the first ``good`` lines on the next loop turns, then loses the link:
+    every line not yet acknowledged fails with the last acknowledged one named."""
+
+    def __init__(self, good: int) -> None:
+        super().__init__()
+        self.good = good
+        self.lost = False
+        self.futs: list[asyncio.Future[int]] = []
+
+    def submit(self, command: str) -> asyncio.Future[int]:  # type: ignore[override]
+        if self.lost:
+            raise NotConnected("link is disconnected", self.good)
+        self.log.append(command)
+        loop = asyncio.get_running_loop()
+        fut: asyncio.Future[int] = loop.create_future()
+        self.futs.append(fut)
+        seq = len(self.futs)
+        loop.call_soon(fut.set_result if seq <= self.good else self._lose, seq)
+        return fut
+
+    def _lose(self, _seq: int) -> None:
+        self.lost = True
+        for fut in self.futs:
+            if not fut.done():
+                fut.set_exception(LinkLost("port lost", self.good))
+
+
+LAYERED = "G90\nM83\n" + "".join(
+    (f';HOSTD_LAYER {{"subpart": 0, "index": {i // 5}}}\n' if i % 5 == 0 else "")
+    + f"G1 X{i} Y{i % 7} Z{0.2 * (1 + i // 5):.1f} E0.1 F1200\n" for i in range(40))
 
 
 EXTRA = {"M400", "M114", "M105"}
@@ -212,8 +251,28 @@ async def test_lost_step_pauses_at_transition_and_resume_rehomes_and_rotates():
 
 
 @pytest.mark.asyncio
+@pytest.mark.parametrize("good", [0, 3, 4, 6, 9, 17])
+async def test_a_lost_link_leaves_the_acknowledged_count_exact(good: int) -> None:
+    """Batches of four lines (lookahead 16) with the link lost after ``good`` lines: the
+    streamer stops with the link's error and counts exactly the lines acknowledged, also
+    when the loss falls inside a batch."""
+    prog = parse_program(LAYERED)
+    port = FailingPort(good)
+    st = Streamer(port, prog, StreamSettings(lookahead=16))
+    async with asyncio.timeout(5):
+        with pytest.raises(LinkLost):
+            await st.run()
+    assert st.acked == good and port.log == prog.commands[:len(port.log)]
+    assert len(port.log) > good  # lines were out beyond the last acknowledged one
+    mark = prog.layer_at(good - 1) if good else prog.layer_at(0)
+    assert (st.subpart, st.layer) == ((mark.subpart, mark.layer) if mark else (None, None))
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("lookahead", [4, 16])
 @pytest.mark.parametrize("read_every", [1, 3, 7])
-async def test_modal_state_and_layer_are_those_of_the_acknowledged_prefix(read_every: int):
+async def test_modal_state_and_layer_are_those_of_the_acknowledged_prefix(read_every: int,
+                                                                         lookahead: int):
     """Read now and then (as a status poll does), the modal state is always the one the
     acknowledged commands leave, and the layer the one of the last acknowledged command."""
     prog = parse_program(GCODE)
@@ -226,7 +285,8 @@ async def test_modal_state_and_layer_are_those_of_the_acknowledged_prefix(read_e
         mark = prog.layer_at(s.acked - 1)
         assert (s.subpart, s.layer) == ((mark.subpart, mark.layer) if mark else (None, None))
 
-    st = Streamer(FakePort(), prog, StreamSettings(lookahead=4), Hooks(progress=check))
+    st = Streamer(FakePort(), prog, StreamSettings(lookahead=lookahead),
+                  Hooks(progress=check))
     async with asyncio.timeout(5):
         assert await st.run() == "completed"
     assert seen[-1] == prog.total and st.modal.snapshot() == prog.modal_before(

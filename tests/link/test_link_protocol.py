@@ -11,6 +11,7 @@ from hostd.link.errors import (
     FirmwareReset,
     HistoryExhausted,
     LinkLost,
+    NotConnected,
     ResendLoop,
 )
 from hostd.link.framing import encode, frame
@@ -74,6 +75,29 @@ def test_replies_received_together_count_as_one_read() -> None:
     assert acks(p.receive_lines(["ok", "ok"], 0.1)) == [1, 2]
     assert acks(p.receive_lines(["ok"], 0.2)) == [3]
     assert p.counters.reads - before == 2 and p.snapshot()["reads"] == p.counters.reads
+
+
+@pytest.mark.parametrize("partial", [True, False])
+def test_submit_many_puts_on_the_wire_what_a_submit_each_does(partial: bool) -> None:
+    """The lines of one submit_many go out, ok by ok, exactly as when each is submitted on
+    its own, and are acknowledged alike."""
+    one, many = ready(partial_lines=partial), ready(partial_lines=partial)
+    warm = "G28"
+    one.submit(warm, 0.0)
+    many.submit(warm, 0.0)
+    cmds = [f"G1 X{i}.000 Y{2 * i}.500 E0.0{i % 10}" for i in range(30)]
+    one_wire = "".join(wire(one.submit(c, 0.0)[1]) for c in cmds)
+    first, actions = many.submit_many(cmds, 0.0)
+    assert first == 2 and wire(actions) == one_wire
+    for k in range(len(cmds) + 1):
+        want, got = one.receive("ok", 0.1 * k), many.receive("ok", 0.1 * k)
+        assert wire(got) == wire(want) and many.last_acked == one.last_acked == k + 1
+    assert many.snapshot() | {"ok_rtt": None} == one.snapshot() | {"ok_rtt": None}
+
+
+def test_submit_many_needs_a_connection() -> None:
+    with pytest.raises(NotConnected):
+        Protocol(LinkSettings()).submit_many(["G28"], 0.0)
 
 
 def test_pingpong_has_one_line_in_flight() -> None:
