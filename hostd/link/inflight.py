@@ -120,6 +120,24 @@ class InFlight:
         self._ascending = numbers == sorted(set(numbers))
         return latest
 
+    def pop_run(self, first: int, last: int) -> list[Sent] | None:
+        """:meth:`drop_through` of ``first``, then of each line up to ``last``, in one step:
+        the transmissions of lines ``first`` .. ``last`` that each of those calls would
+        return, in order. Only while the line numbers ascend (else ``None``, nothing done)."""
+        if not self._ascending:
+            return None
+        entries = self._entries
+        out = []
+        while entries and entries[0].number <= last:
+            sent = entries.popleft()
+            if sent.counted:
+                sent.counted = False
+                self.bytes -= sent.written
+                self.lines -= 1
+            if sent.number >= first:
+                out.append(sent)
+        return out
+
     def uncount(self) -> None:
         """Release the credit of every transmission (the firmware's buffer is known empty)."""
         for sent in self._entries:

@@ -162,10 +162,14 @@ class Protocol:
     def receive_lines(self, lines: list[str], now: float) -> list[Action]:
         """Handle lines received together; the lines they free go out after all of them."""
         self.counters.reads += 1
+        plain = 0  # plain oks not handled yet: nine replies in ten, handled together
         for line in lines:
             if line in _PLAIN_OK and self.state == "ready" and self._after_resend is None:
-                self._plain_ok(now)  # nine replies in ten: the short path of _on_ok
+                plain += 1
                 continue
+            if plain:
+                self._plain_oks(plain, now)
+                plain = 0
             reply = parse_reply(line)
             self.observed.update(reply)
             handler = self._handlers.get(type(reply))
@@ -173,6 +177,8 @@ class Protocol:
                 handler(self, reply, now)
             elif self.state == "ready":
                 self._collect(reply)
+        if plain:
+            self._plain_oks(plain, now)
         self._pump(now)
         return self._flush()
 
@@ -422,13 +428,48 @@ class Protocol:
         if released:
             self._inflight.release_from(line, keep=self._partial)
 
-    def _plain_ok(self, now: float) -> None:
-        """:meth:`_on_ok` for a plain ``ok`` in ``ready`` with no resend pending: it
-        carries no fields, so it executes the next line sent whole, if any."""
+    def _plain_oks(self, count: int, now: float) -> None:
+        """:meth:`_on_ok` for ``count`` plain ``ok`` in a row, in ``ready`` with no resend
+        pending: they carry no fields, so each executes the next line sent whole, if any.
+
+        The short path of the daemon's every read. While the transmissions are in line order
+        and no reply came since the last ``ok``, the lines are executed in one step that
+        leaves what one :meth:`_execute_through` per ``ok`` would: the round trip of each
+        line, the window grown once per line, every query answered and the acknowledgements
+        in the same order (a run of lines acknowledged at once, as by ``ok N``).
+        """
         self._progress = now
         self._nudged = 0
-        if self._executed < self._whole_max():
-            self._execute_through(self._executed + 1, PLAIN_OK, now)
+        first = self._executed + 1
+        line = min(self._executed + count, self._whole_max())
+        if line < first:
+            return
+        sents = None if self._since_ok else self._inflight.pop_run(first, line)
+        if sents is None:
+            for number in range(first, line + 1):
+                self._execute_through(number, PLAIN_OK, now)
+            return
+        add = self.rtt.add
+        for sent in sents:
+            add(now - sent.sent_at)
+        self._executed = line
+        self.window.grow(line - first + 1)
+        self._ack_run(first, line)
+        self._trim(line)
+
+    def _ack_run(self, first: int, line: int) -> None:
+        """Answer the queries among lines ``first`` .. ``line`` (each executed by a plain ok,
+        no reply before it) and acknowledge them all, in :meth:`_execute_through`'s order."""
+        history = self._history
+        seq = 0
+        for number in range(first, line + 1):
+            item = history.get(number)
+            if item is not None and item.seq is not None:
+                if item.kind == "query":
+                    self._ack(seq)
+                    self._out.append(Answer(item.seq, (PLAIN_OK,)))
+                seq = item.seq
+        self._ack(seq)
 
     def _note_queue(self, line: int, free: int) -> None:
         """ADVANCED_OK ``ok N<line> B<free>``: see the module docstring for why it is sound."""
@@ -468,10 +509,7 @@ class Protocol:
             self._advance_ack(first, line)
         if self._since_ok:
             self._since_ok = []
-        # the history is trimmed back to history_size lines an eighth of it at a time
-        if (line - self.settings.history_size - self._history_low
-                >= self.settings.history_size >> 3) or self._resend_counts:
-            self._forget(line)
+        self._trim(line)
 
     def _answer_queries(self, first: int, line: int, ok: Ok) -> None:
         """An :class:`Answer` for each query among lines ``first`` .. ``line``.
@@ -498,6 +536,12 @@ class Protocol:
             self.counters.lines_acked += seq - self._acked
             self._acked = seq
             self._out.append(Acked(seq))
+
+    def _trim(self, executed: int) -> None:
+        """Trim the history back to ``history_size`` lines, an eighth of it at a time."""
+        if (executed - self.settings.history_size - self._history_low
+                >= self.settings.history_size >> 3) or self._resend_counts:
+            self._forget(executed)
 
     def _forget(self, executed: int) -> None:
         limit = executed - self.settings.history_size

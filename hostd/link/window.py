@@ -38,6 +38,7 @@ class SendWindow:
         """Halve the window after an error (never below one line in flight)."""
         self.size = max(0, self.size // 2)
 
-    def grow(self) -> None:
-        """Widen the window by ``growth`` bytes after a clean acknowledgement."""
-        self.size = min(self.limit, self.size + self.growth)
+    def grow(self, acks: int = 1) -> None:
+        """Widen the window by ``growth`` bytes per clean acknowledgement."""
+        if self.size < self.limit:
+            self.size = min(self.limit, self.size + self.growth * acks)

@@ -31,6 +31,7 @@ class Outcome:
     connects: int = 0
     ack_ahead_of_execution: list[tuple[int, int]] = field(default_factory=list)
     sent: list[bytes] = field(default_factory=list)
+    events: list[Action] = field(default_factory=list)  # every action but Write, in order
     end_time: float = 0.0
     max_inflight_bytes: int = 0  # most unanswered bytes the host had out at once
 
@@ -38,10 +39,14 @@ class Outcome:
 class VirtualBench:
     """Protocol ⇄ latency ⇄ Firmware, on one virtual clock."""
 
-    def __init__(self, link: LinkSettings, sim: SimSettings, latency: float = 0.0005) -> None:
+    def __init__(self, link: LinkSettings, sim: SimSettings, latency: float = 0.0005,
+                 read_every: float | None = None) -> None:
         self.protocol = Protocol(link)
         self.firmware = Firmware(sim)
         self.latency = latency
+        # None: each reply is handed over alone; else the replies arriving within this many
+        # seconds of the first (and before anything else happens) are read together
+        self.read_every = read_every
         self.now = 0.0
         self.outcome = Outcome()
         self._queue: list[tuple[float, int, str, bytes | str]] = []
@@ -60,6 +65,8 @@ class VirtualBench:
 
     def _apply(self, actions: list[Action]) -> None:
         for action in actions:
+            if not isinstance(action, Write):
+                self.outcome.events.append(action)
             if isinstance(action, Write):
                 self.outcome.sent.append(action.data)
                 self.outcome.max_inflight_bytes = max(self.outcome.max_inflight_bytes,
@@ -168,7 +175,12 @@ class VirtualBench:
             self._firmware_output()
         else:
             assert isinstance(payload, str)
-            self._apply(self.protocol.receive(payload, self.now))
+            lines = [payload]
+            while (self.read_every is not None and self._queue
+                   and self._queue[0][2] == "host"
+                   and self._queue[0][0] <= self.now + self.read_every):
+                lines.append(str(heapq.heappop(self._queue)[3]))
+            self._apply(self.protocol.receive_lines(lines, self.now))
 
 
 def wire_lines(sent: list[bytes]) -> list[bytes]:

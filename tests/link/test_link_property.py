@@ -7,12 +7,16 @@ about a second per 10 000-line job).
 from __future__ import annotations
 
 import random
+from collections.abc import Callable
+from unittest.mock import patch
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from link_harness import VirtualBench, assert_whole_valid_lines, job_log
 
+from hostd.link.actions import Acked, Action, Answer
+from hostd.link.inflight import InFlight, Sent
 from hostd.link.replies import Ok
 from hostd.link.settings import LinkSettings
 from hostd.sim.settings import SimSettings
@@ -79,12 +83,24 @@ def test_random_fault_schedules_execute_every_line_once_in_order(
 QUERIES = ("M105 T0", "M114")
 
 
-def with_queries(commands: list[str], every: int) -> list[str]:
-    """``commands`` with every ``every``-th replaced by a query, M114 and M105 in turn."""
+def with_queries(commands: list[str], every: int,
+                 queries: tuple[str, ...] = QUERIES) -> list[str]:
+    """``commands`` with every ``every``-th replaced by a query, ``queries`` in turn."""
     out = list(commands)
     spots = range(every // 2, len(out), every)
     for k, i in enumerate(spots):
-        out[i] = QUERIES[k % 2]
+        out[i] = queries[k % len(queries)]
+    return out
+
+
+def tiny_moves(n: int, seed: int) -> list[str]:
+    """Moves of hundredths of a millimetre: the planner keeps up, so the replies come as
+    fast as the link carries them, several to a read."""
+    rng = random.Random(seed)
+    out, x, y, e = [], 0.0, 0.0, 0.0
+    for _ in range(n):
+        x, y, e = x + rng.uniform(0.005, 0.03), y + rng.uniform(-0.02, 0.02), e + 0.001
+        out.append(f"G1 X{x:.3f} Y{y:.3f} E{e:.4f} F6000")
     return out
 
 
@@ -153,3 +169,83 @@ def test_a_host_that_ignores_the_window_is_caught_by_the_emulator() -> None:
     burst = b"".join(encode(frame(n, f"G1 X{n * 10} F600")) for n in range(1, 60))
     fw.receive(burst)
     assert fw.dropped_bytes > 0
+
+
+ANY_QUERY = ("M114", "M400", "M105 T0")  # M400 is answered by a plain ok
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(knobs=faults, length=st.integers(1, 600), every=st.integers(2, 60),
+       partial=st.booleans(), read_every=st.sampled_from([0.0, 0.001, 0.003]))
+def test_oks_read_together_take_the_short_path_to_the_same_outcome(
+        knobs: dict[str, object], length: int, every: int, partial: bool,
+        read_every: float) -> None:
+    """The plain oks of one read are executed in one step (``Protocol._plain_oks``) while the
+    transmissions are in order. Under random faults, with replies read several at a time,
+    the same job with that step and with one ``_execute_through`` per ok (``pop_run``
+    patched to decline) puts the same bytes on the wire at the same moments, answers the
+    same queries with the same replies, acknowledges the same lines in the same order and
+    ends in the same state (round trips and window included)."""
+    commands = with_queries(tiny_moves(length, int(knobs["seed"])), every, ANY_QUERY)  # type: ignore[call-overload]
+    link = LinkSettings(partial_lines=partial, ok_timeout=5.0, nudges=3,
+                        rx_buffer_bytes=int(knobs["rx_buffer_bytes"]))  # type: ignore[call-overload]
+    runs = []
+    for short in (True, False):
+        bench = VirtualBench(link, SimSettings(**knobs), read_every=read_every)  # type: ignore[arg-type]
+        calls: list[int] = []
+        with patch.object(InFlight, "pop_run", side_effect=_counted(calls, short),
+                          autospec=True):
+            assert bench.connect()
+            bench.stream(commands, queries=ANY_QUERY)
+        runs.append((bench, calls))
+    (fast, taken), (slow, declined) = runs
+    assert fast.outcome.sent == slow.outcome.sent and fast.now == slow.now
+    assert _in_order(fast.outcome.events) == _in_order(slow.outcome.events)
+    assert fast.protocol.snapshot() == slow.protocol.snapshot()
+    assert len(taken) == len(declined)  # the same reads met the same choice
+
+
+@pytest.mark.parametrize("read_every", [0.001, 0.003])
+def test_a_plain_job_takes_the_short_path_for_runs_of_oks(read_every: float) -> None:
+    """Without faults and with replies read a few milliseconds at a time (as the daemon's
+    held reads), most oks go the short path, many in runs of two or more."""
+    commands = tiny_moves(600, 5)
+    bench = VirtualBench(LinkSettings(), SimSettings(), read_every=read_every)
+    taken: list[int] = []
+    with patch.object(InFlight, "pop_run", side_effect=_counted(taken, True), autospec=True):
+        assert bench.connect()
+        bench.stream(commands)
+    assert_exactly_once(bench, commands)
+    assert sum(taken) >= 0.9 * len(commands) and max(taken) >= 2
+
+
+def _in_order(events: list[Action]) -> list[tuple[str, object]]:
+    """The events of a job, a run of acknowledgements in a row counted as its last one (one
+    ``Acked`` for several lines resolves the same futures, in the same order)."""
+    out: list[tuple[str, object]] = []
+    for event in events:
+        if isinstance(event, Acked):
+            if out and out[-1][0] == "acked":
+                out.pop()
+            out.append(("acked", event.line))
+        elif isinstance(event, Answer):
+            out.append(("answer", (event.line, event.replies)))
+        else:
+            out.append((type(event).__name__, str(getattr(event, "error", ""))))
+    return out
+
+
+def _counted(log: list[int], short: bool) -> Callable[..., list[Sent] | None]:
+    """``InFlight.pop_run`` as it is, noting how many lines each call took (0 when it
+    declined: transmissions out of order), or declining every time."""
+    def pop_run(self: InFlight, first: int, last: int) -> list[Sent] | None:
+        if not short:
+            log.append(0)
+            return None
+        out = _POP_RUN(self, first, last)
+        log.append(0 if out is None else last - first + 1)
+        return out
+    return pop_run
+
+
+_POP_RUN = InFlight.pop_run
