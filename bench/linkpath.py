@@ -1,6 +1,9 @@
 """The daemon's Python work per streamed line, without a port: link shell, protocol, streamer.
 
-Run: ``.venv/bin/python bench/linkpath.py [--lines N] [--by-function]``.
+Run: ``.venv/bin/python bench/linkpath.py [--layers N] [--by-function]``, or
+``bench/linkpath.py --base CHECKOUT [--rounds 10]`` to compare the cold figure of another
+version of this repository (e.g. made by ``git worktree add /tmp/base <commit>``) with this
+one's, the two run alternately, each in a fresh process.
 
 A fake port answers the complete lines of each write with one ``ok`` each, handed over
 together on a later loop turn (as the ``ok`` that one read of a real port finds: about two at
@@ -10,15 +13,25 @@ lines, as a status poll at 20 Hz does at 250000 baud. Printed:
 
 - ``bytecodes_per_line``: Python bytecodes executed per line (a trace count, the same on
   every run and every machine: it moves only when the code does);
-- ``warm_us_per_line``: wall microseconds per line, the best of three runs. In the daemon
-  the same code runs cold between system calls and costs several times more; this and
-  :mod:`daemon`'s live figure are for comparing versions, not for the target.
+- ``warm_us_per_line``: wall microseconds per line, the best of three runs, the replies
+  handed over as soon as the loop turns;
+- ``cold_cpu_us_per_line``: CPU microseconds per line (the process's) when the replies come
+  as the live daemon's held reads find them, ``per_read`` every 3.5 ms (``--gap``). Between
+  two reads the process sleeps and its caches go cold, on this VM as in the daemon: the same
+  code then costs several times the warm figure, and this is the one that tracks
+  :mod:`daemon`'s live CPU (without its port, emulator and clients). It is measured on fewer
+  lines (``--cold-layers``) and drifts with the VM's spells: compare versions with
+  ``--base``.
+
+These are for comparing versions, not for the target (:mod:`daemon` has the live figure).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import statistics
+import subprocess
 import sys
 import time
 from collections import Counter
@@ -27,7 +40,9 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-ROOT = Path(__file__).resolve().parents[1]
+HERE = Path(__file__).resolve()
+ROOT = Path(sys.argv[sys.argv.index("--root") + 1]).resolve() if "--root" in sys.argv \
+    else HERE.parents[1]  # the checkout whose daemon code is measured
 sys.path.insert(0, str(ROOT))
 
 from daemon import synthetic_gcode  # noqa: E402
@@ -77,15 +92,42 @@ class AnsweringTransport:
         self.closing = True
 
 
-async def stream(text: str, per_read: int,
-                 tracer: Callable[..., Any] | None = None) -> tuple[float, int]:
-    """Stream ``text`` through the real link and streamer: (seconds, lines)."""
+class PacedTransport(AnsweringTransport):
+    """The wire at a pace: every ``gap`` seconds, up to ``per_read`` of the ``ok`` due are
+    handed over, as the live daemon's held reads find them."""
+
+    def __init__(self, receiver: LineReceiver, loop: asyncio.AbstractEventLoop,
+                 per_read: int, gap: float) -> None:
+        super().__init__(receiver, loop, per_read)
+        self.gap = gap
+        self.tick = loop.call_later(gap, self.hand_over)
+
+    def write(self, data: bytes) -> None:
+        *lines, self.partial = (self.partial + data).split(b"\n")
+        self.due += len(lines)
+
+    def hand_over(self) -> None:
+        if self.closing:
+            return
+        count = min(self.due, self.per_read)
+        if count:
+            self.due -= count
+            self.receiver.data_received(b"ok\n" * count)
+        self.tick = self.loop.call_later(self.gap, self.hand_over)
+
+
+async def stream(text: str, per_read: int, tracer: Callable[..., Any] | None = None,
+                 gap: float = 0.0) -> tuple[float, int]:
+    """Stream ``text`` through the real link and streamer: (seconds, lines). With ``gap``,
+    the replies come at the pace of :class:`PacedTransport`."""
     cfg = defaults()
     loop = asyncio.get_running_loop()
 
     async def opener(*_: object) -> Connection:
         receiver = LineReceiver()
-        return Connection(AnsweringTransport(receiver, loop, per_read), receiver)  # type: ignore[arg-type]
+        port = (PacedTransport(receiver, loop, per_read, gap) if gap
+                else AnsweringTransport(receiver, loop, per_read))
+        return Connection(port, receiver)  # type: ignore[arg-type]
 
     link = SerialLink(link_settings_from_config(cfg), opener=opener)
     await link.connect()
@@ -123,20 +165,62 @@ def count_bytecodes(text: str, per_read: int) -> tuple[Counter[str], int]:
     return counts, lines
 
 
+def cold_us_per_line(text: str, per_read: int, gap: float) -> float:
+    """Process CPU microseconds per line, the replies paced by ``gap``."""
+    cpu = time.process_time()
+    _, lines = asyncio.run(stream(text, per_read, gap=gap))
+    return 1e6 * (time.process_time() - cpu) / lines
+
+
+def compare(base: Path, rounds: int, args: argparse.Namespace) -> int:
+    """The cold figure of ``base`` and of this checkout, alternately, in fresh processes."""
+    figures: dict[str, list[float]] = {"base": [], "this": []}
+    order = [("base", base), ("this", HERE.parents[1])]
+    for k in range(rounds):
+        for tag, checkout in order if k % 2 == 0 else order[::-1]:
+            out = subprocess.run(
+                [sys.executable, str(HERE), "--cold-only", "--root", str(checkout),
+                 "--per-read", str(args.per_read), "--gap", str(args.gap),
+                 "--cold-layers", str(args.cold_layers)],
+                capture_output=True, text=True, check=True).stdout
+            figures[tag].append(float(out.split()[-1]))
+            print(f"{tag:>5} cold_cpu_us_per_line {figures[tag][-1]:8.2f}", flush=True)
+    for tag, values in figures.items():
+        print(f"{tag:>5} mean {statistics.mean(values):8.2f} "
+              f"median {statistics.median(values):8.2f}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--layers", type=int, default=40, help="layers of 200 lines (default 40)")
     ap.add_argument("--by-function", action="store_true", help="the 25 costliest functions")
     ap.add_argument("--per-read", type=int, default=2,
                     help="replies handed over together (default 2, as the live daemon reads)")
+    ap.add_argument("--gap", type=float, default=0.0035,
+                    help="seconds between two reads for the cold figure (default 0.0035)")
+    ap.add_argument("--cold-layers", type=int, default=10,
+                    help="layers of 200 lines for the cold figure (default 10)")
+    ap.add_argument("--cold-only", action="store_true", help="print the cold figure alone")
+    ap.add_argument("--root", type=Path, help="measure the daemon code of this checkout")
+    ap.add_argument("--base", type=Path, help="compare the cold figure with this checkout")
+    ap.add_argument("--rounds", type=int, default=10, help="rounds of --base (default 10)")
     args = ap.parse_args()
+    if args.base is not None:
+        return compare(args.base, args.rounds, args)
+    cold_text = synthetic_gcode(subparts=1, layers=args.cold_layers, per_layer=200)
+    if args.cold_only:
+        print(f"{cold_us_per_line(cold_text, args.per_read, args.gap):.3f}")
+        return 0
     text = synthetic_gcode(subparts=1, layers=args.layers, per_layer=200)
     runs = [asyncio.run(stream(text, args.per_read)) for _ in range(3)]
     lines = runs[0][1]
     counts, _ = count_bytecodes(text, args.per_read)
+    cold = cold_us_per_line(cold_text, args.per_read, args.gap)
     print(f"linkpath bench: {lines} lines, one ok each, {args.per_read} per read, no port")
     print(f"{'bytecodes_per_line':28} {sum(counts.values()) / lines:10.1f}")
     print(f"{'warm_us_per_line':28} {1e6 * min(s for s, _ in runs) / lines:10.2f}")
+    print(f"{'cold_cpu_us_per_line':28} {cold:10.2f}")
     if args.by_function:
         for name, n in counts.most_common(25):
             print(f"  {n / lines:8.1f}  {name}")
