@@ -8,8 +8,8 @@ one's, the two run alternately, each in a fresh process.
 A fake port answers the complete lines of each write with one ``ok`` each, handed over
 together on a later loop turn (as the ``ok`` that one read of a real port finds: about two at
 250000 baud with the read hold, ``bench/daemon.py``'s ``acked_lines_per_read``; ``--per-read
-1`` hands each ``ok`` over on a turn of its own); the streamer reads its modal state every 30
-lines, as a status poll at 20 Hz does at 250000 baud. Printed:
+1`` hands each ``ok`` over on a turn of its own); the modal state is read whenever 30 more
+lines are acknowledged, as a status poll at 20 Hz does at 250000 baud. Printed:
 
 - ``bytecodes_per_line``: Python bytecodes executed per line (a trace count, the same on
   every run and every machine: it moves only when the code does);
@@ -133,8 +133,11 @@ async def stream(text: str, per_read: int, tracer: Callable[..., Any] | None = N
     await link.connect()
     program = parse_program(text)
 
-    def progress(st: Streamer) -> None:
-        if st.acked % STATUS_EVERY == 0:
+    polled = [0]  # acknowledged lines at the last status poll
+
+    def progress(st: Streamer) -> None:  # called once per acknowledged batch of lines
+        if st.acked - polled[0] >= STATUS_EVERY:
+            polled[0] = st.acked
             st.modal  # noqa: B018  (a status poll brings the modal state up to date)
 
     streamer = Streamer(LinkPort(link), program, stream_settings(cfg), Hooks(progress=progress))
