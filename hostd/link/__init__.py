@@ -3,7 +3,8 @@
 Layers
 ------
 :mod:`~hostd.link.framing`
-    Pure: ``checksum``, ``frame(n, cmd) -> "N<n> <cmd>*<cs>"``, ``strip_gcode(line)``.
+    Pure: ``checksum``, ``frame(n, cmd) -> "N<n> <cmd>*<cs>"``, ``framed(n, cmd) -> bytes``
+    (the same, encoded, with its newline), ``strip_gcode(line)``.
 :mod:`~hostd.link.replies`
     Pure: ``parse_reply(line) -> Reply`` (``Ok``, ``Resend``, ``Busy``, ``Wait``, ``Echo``,
     ``ErrorReply``, ``Halted``, ``Temperatures``, ``Position``, ``FirmwareInfo``,
@@ -49,7 +50,8 @@ Using the link
 - ``async connect()``, ``async close()``, ``async wait_connected()``, ``connected``.
 - ``submit(cmd) -> Future[int]`` (never blocks; resolves with the submission number when the
   firmware acknowledges the line, fails with a ``LinkError``), ``enqueue(cmds)``,
-  ``async send(cmd) -> int``.
+  ``async send(cmd) -> int``; ``submit_many(cmds) -> (first, Future[int])`` queues several
+  with one future for the last (the job streamer's way: a future per batch, not per line).
 - ``async stream(lines, strip=True)`` yields the input index of each line as it is
   acknowledged, in order, with at most ``settings.max_queued`` lines ahead.
 - ``async query(cmd) -> Reply``; ``emergency_stop()``; ``status() -> dict``.
