@@ -280,6 +280,7 @@ async def test_modal_state_and_layer_are_those_of_the_acknowledged_prefix(read_e
 
     def check(s: Streamer) -> None:
         seen.append(s.acked)
+        assert 0 <= s.status()["inflight"] <= lookahead  # lines submitted, not yet acked
         if len(seen) % read_every == 0:
             assert s.modal.snapshot() == prog.modal_before(s.acked).snapshot()
         mark = prog.layer_at(s.acked - 1)
