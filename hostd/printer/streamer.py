@@ -84,7 +84,7 @@ class Batch:
     start: int
     stop: int
     first: int
-    done: asyncio.Future[Any]
+    acked: asyncio.Future[Any]
 
 
 @dataclass
@@ -205,9 +205,9 @@ class Streamer:
             inflight.append(Batch(index, stop, first, fut))
             index = stop
             if len(inflight) > batches:
-                await _settled(inflight[0].done)
-            if inflight[0].done.done():
-                while inflight and inflight[0].done.done():
+                await _settled(inflight[0].acked)
+            if inflight[0].acked.done():
+                while inflight and inflight[0].acked.done():
                     self._ack_head()
                 self._catch_up()  # here, not in a status call that would hold the loop
         return index
@@ -217,7 +217,7 @@ class Streamer:
         taking note of the lines of the batch acknowledged before the failure."""
         batch = self._inflight[0]
         try:
-            batch.done.result()
+            batch.acked.result()
         except LinkError as err:
             done = min(max(0, err.last_acked - batch.first + 1), batch.stop - batch.start)
             self._acked_to(batch.start + done)
@@ -245,7 +245,7 @@ class Streamer:
 
     async def _drain(self) -> None:
         while self._inflight:
-            await _settled(self._inflight[0].done)
+            await _settled(self._inflight[0].acked)
             self._ack_head()
 
     async def _extra(self, command: str) -> None:

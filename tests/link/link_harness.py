@@ -65,15 +65,15 @@ class VirtualBench:
 
     def _apply(self, actions: list[Action]) -> None:
         for action in actions:
-            if not isinstance(action, Write):
-                self.outcome.events.append(action)
             if isinstance(action, Write):
                 self.outcome.sent.append(action.data)
                 self.outcome.max_inflight_bytes = max(self.outcome.max_inflight_bytes,
                                                       self.protocol.inflight_bytes)
                 self._fw_clear = max(self._fw_clear, self.now) + 1e-9
                 self._push(self._fw_clear + self.latency, "fw", action.data)
-            elif isinstance(action, Acked):
+                continue
+            self.outcome.events.append(action)
+            if isinstance(action, Acked):
                 self._check_ack(action.line)
                 self.outcome.acked.append(action.line)
             elif isinstance(action, Failed):
