@@ -30,6 +30,16 @@ class Buckets:
         self.total += value
         self.n += 1
 
+    def observe_many(self, values: Sequence[float]) -> None:
+        """:meth:`observe` each of ``values``, in one call."""
+        counts, bounds, where = self.counts, self.bounds, bisect.bisect_left
+        total = self.total
+        for value in values:
+            counts[where(bounds, value)] += 1
+            total += value  # in order, as observe() would: the same float sum
+        self.total = total
+        self.n += len(values)
+
     def snapshot(self) -> dict[str, object]:
         """``{"buckets": [[le, cumulative], ...], "sum": s, "count": n}`` with le "+Inf" last.
 

@@ -8,13 +8,19 @@ from dataclasses import dataclass
 
 @dataclass(slots=True)
 class Item:
-    """One command to transmit: its submission number and, once sent, its line number."""
+    """One command to transmit: its submission number and, once sent, its line number.
+
+    ``data`` is the line framed as number ``framed_as`` (its wire bytes): framed ahead, when
+    submitted, with the number it will most likely get; framed again at the first
+    transmission if another line took that number meanwhile (a nudge, a new connection).
+    """
 
     command: str
     seq: int | None  # submission order (None for the handshake and nudges)
     kind: str  # line | query | handshake | nudge
     number: int | None = None  # N, given at the first transmission
     data: bytes = b""
+    framed_as: int = -1  # the number data was framed with (-1: not framed)
 
 
 @dataclass(slots=True)

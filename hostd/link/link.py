@@ -223,8 +223,7 @@ class SerialLink:
         return time.monotonic()
 
     def _on_lines(self, lines: list[bytes]) -> None:
-        self._apply(self.protocol.receive_lines(
-            [raw.decode("ascii", "replace") for raw in lines], self._now()))
+        self._apply(self.protocol.receive_lines(lines, self._now()))
 
     def _on_lost(self, conn: Connection, reason: str) -> None:
         if conn is self.connection and not self._closed:

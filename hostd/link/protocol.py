@@ -93,7 +93,8 @@ from hostd.link.stats import LinkCounters, RoundTrip
 from hostd.link.window import SendWindow
 
 HANDSHAKE = "M110 N0"
-_PLAIN_OK = frozenset(("ok", "ok\r"))  # received texts that parse to PLAIN_OK
+# received lines that parse to PLAIN_OK, as texts and as the bytes the port gives
+_PLAIN_OK = frozenset(("ok", "ok\r", b"ok", b"ok\r"))
 NUDGE = "M105"
 
 
@@ -133,7 +134,9 @@ class Protocol:
         if self.state != "ready":
             raise errors.NotConnected(f"link is {self.state}", self.last_acked)
         self._seq += 1
-        self._pending.append(Item(command, self._seq, kind))
+        number = self._next + len(self._pending)  # its number if nothing else takes one
+        self._pending.append(Item(command, self._seq, kind, None, framed(number, command),
+                                  number))
         if len(self._pending) == 1 and not self._resend:
             # only a new head can go out: the lines ahead of it already wait for credit,
             # which only replies and time give back (and both pump)
@@ -148,8 +151,11 @@ class Protocol:
         first = self._seq + 1
         pending = self._pending
         idle = not pending and not self._resend
+        # framed here, in one loop, rather than one or two at a time as replies free credit
+        number = self._next + len(pending) - first
         for seq, command in enumerate(commands, first):
-            pending.append(Item(command, seq, "line"))
+            pending.append(Item(command, seq, "line", None, framed(number + seq, command),
+                                number + seq))
         self._seq = first + len(commands) - 1
         if idle:
             self._pump(now)
@@ -159,8 +165,12 @@ class Protocol:
         """Handle one line received from the firmware."""
         return self.receive_lines([line], now)
 
-    def receive_lines(self, lines: list[str], now: float) -> list[Action]:
-        """Handle lines received together; the lines they free go out after all of them."""
+    def receive_lines(self, lines: Sequence[str | bytes], now: float) -> list[Action]:
+        """Handle lines received together; the lines they free go out after all of them.
+
+        Lines may be texts or the bytes read from the port (without the newline, decoded
+        here as ASCII with replacement characters: plain ``ok`` s need no decoding).
+        """
         self.counters.reads += 1
         plain = 0  # plain oks not handled yet: nine replies in ten, handled together
         for line in lines:
@@ -170,6 +180,8 @@ class Protocol:
             if plain:
                 self._plain_oks(plain, now)
                 plain = 0
+            if isinstance(line, bytes):
+                line = line.decode("ascii", "replace")
             reply = parse_reply(line)
             self.observed.update(reply)
             handler = self._handlers.get(type(reply))
@@ -312,16 +324,16 @@ class Protocol:
             nbytes += self._continue_partial(lines, nbytes)
             if self._partial is not None:
                 return
-        window = self.window
+        credit = self.window.credit()  # the window does not change while it pumps
         while True:
             queue = self._resend or self._pending
             if not queue:
                 return
             item = queue[0]
-            # not framed yet: "N<next> " + command + "*<checksum, at most 3 digits>\n"
-            size = len(item.data) if item.data else len(item.command) + len(str(self._next)) + 7
-            if lines and not window.fits(lines, nbytes, size):
-                room = window.room(nbytes) if self.settings.partial_lines else 0
+            if item.number is None and item.framed_as != self._next:
+                self._frame(item)
+            if lines and nbytes + len(item.data) > credit:
+                room = credit - nbytes if self.settings.partial_lines else 0
                 if room <= 0:
                     return
                 queue.popleft()
@@ -338,9 +350,10 @@ class Protocol:
         returns the bytes written."""
         number = item.number
         if number is None:
+            if item.framed_as != self._next:
+                self._frame(item)
             number = item.number = self._next
             self._next += 1
-            item.data = framed(number, item.command)
             self._history[number] = item
         if self._sent_max <= self._executed and not self._inflight:
             self._progress = now
@@ -353,7 +366,7 @@ class Protocol:
             self.counters.lines_split += 1
         self._out.append(Write(data))
         self._inflight.add(sent)
-        if _is_m105(item.command):
+        if item.command[:4] == NUDGE and _is_m105(item.command):
             self._m105.append(number)
         if item.kind == "handshake":
             return sent.written
@@ -362,6 +375,11 @@ class Protocol:
             self.counters.lines_resent += 1
         self._sent_max = max(self._sent_max, number)
         return sent.written
+
+    def _frame(self, item: Item) -> None:
+        """Frame ``item`` as the next line number (the one framed ahead was taken)."""
+        item.data = framed(self._next, item.command)
+        item.framed_as = self._next
 
     def _continue_partial(self, lines: int, nbytes: int) -> int:
         """Write what the credit (``lines`` and ``nbytes`` used) allows of the line going out
@@ -449,9 +467,8 @@ class Protocol:
             for number in range(first, line + 1):
                 self._execute_through(number, PLAIN_OK, now)
             return
-        add = self.rtt.add
-        for sent in sents:
-            add(now - sent.sent_at)
+        if sents:
+            self.rtt.add_many([now - sent.sent_at for sent in sents])
         self._executed = line
         self.window.grow(line - first + 1)
         self._ack_run(first, line)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from hostd.stats import RTT_BOUNDS, Buckets
@@ -46,6 +47,12 @@ class RoundTrip:
         self.last = seconds
         if seconds > self.largest:
             self.largest = seconds
+
+    def add_many(self, seconds: Sequence[float]) -> None:
+        """:meth:`add` each of ``seconds`` (at least one), in one call."""
+        self.buckets.observe_many(seconds)
+        self.last = seconds[-1]
+        self.largest = max(self.largest, *seconds)
 
     def as_dict(self) -> dict[str, object]:
         """Milliseconds, plus the cumulative histogram in seconds, for the status snapshot."""

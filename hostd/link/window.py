@@ -22,13 +22,11 @@ class SendWindow:
     def __post_init__(self) -> None:
         self.size = self.limit
 
-    def fits(self, inflight_lines: int, inflight_bytes: int, length: int) -> bool:
-        """Whether a line of ``length`` bytes may go out now."""
-        if inflight_lines == 0:
-            return True
-        if self.mode == "pingpong":
-            return False
-        return inflight_bytes + length <= self.size
+    def credit(self) -> int:
+        """Bytes the lines in flight may hold beside a first one: a line of ``length`` bytes
+        fits when nothing is in flight or ``inflight_bytes + length <= credit()`` (-1 in
+        ping-pong: never beside another)."""
+        return self.size if self.mode == "window" else -1
 
     def room(self, inflight_bytes: int) -> int:
         """Bytes of a line that may go out now beside ``inflight_bytes`` (none in ping-pong)."""

@@ -190,26 +190,29 @@ class Streamer:
         """Submit commands ``index`` .. ``end - 1`` in order; returns the next one to submit,
         ``end`` unless ``stoppable`` and a pause or cancel was asked for.
 
-        Commands go out in batches of a quarter of ``lookahead``, each with one future for its
-        last line: when ``lookahead`` lines are out, it sleeps until the oldest batch is
-        acknowledged (one wake-up per batch, not per ``ok``), then takes note of every
-        acknowledged batch.
+        Commands go out in batches of half the ``lookahead``, each with one future for its
+        last line: with ``lookahead`` lines out, it sleeps until the oldest batch is
+        acknowledged (one wake-up per batch, not per ``ok``), takes note of every
+        acknowledged batch, and submits the next. The link's queue stays at least half full,
+        far more than the firmware's buffer takes.
         """
         inflight, commands = self._inflight, self.program.commands
         submit_many = self.port.submit_many
-        size = max(1, self.settings.lookahead // 4)
+        size = max(1, self.settings.lookahead // 2)
         batches = max(1, self.settings.lookahead // size)
         while index < end and not (stoppable and self._stop_asked):
+            if len(inflight) >= batches:
+                await _settled(inflight[0].acked)
+            if inflight and inflight[0].acked.done():
+                while inflight and inflight[0].acked.done():
+                    self._ack_head()
+                self._catch_up()  # here, not in a status call that would hold the loop
+                if stoppable and self._stop_asked:
+                    break
             stop = min(end, index + size)
             first, fut = submit_many(commands[index:stop])
             inflight.append(Batch(index, stop, first, fut))
             index = stop
-            if len(inflight) > batches:
-                await _settled(inflight[0].acked)
-            if inflight[0].acked.done():
-                while inflight and inflight[0].acked.done():
-                    self._ack_head()
-                self._catch_up()  # here, not in a status call that would hold the loop
         return index
 
     def _ack_head(self) -> None:

@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import asyncio
+from collections import deque
 
 import pytest
 
@@ -178,14 +179,14 @@ async def test_pause_records_modal_state_and_resume_restores_it():
         await paused.wait()
         assert seen["modal"] == prog.modal_before(seen["acked"]).snapshot()
         pause_cmds = port.log[seen["log_len"] - 6:seen["log_len"]]
-        assert pause_cmds == ["M400", "M83", "G1 E-1.0000 F2100", "G90", "G1 Z5.4000 F600",
-                              "M400"]
+        assert pause_cmds == ["M400", "M83", "G1 E-1.0000 F2100", "G90", "G1 Z5.2000 F600",
+                              "M400"]  # lookahead 1: paused right after line 7, at Z0.2
         assert not any(c.startswith(("G0 A", "G1 A")) for c in pause_cmds)  # no rotation
         st.request_resume()
         assert await task == "completed"
     after = port.log[seen["log_len"]:]
-    assert after[:3] == ["G90", "G1 X20.0000 Y20.0000 F7200", "G1 Z0.4000 F600"]
-    assert "G92 E3.00000" in after and "M82" in after and "G1 F1200" in after
+    assert after[:3] == ["G90", "G1 X20.0000 Y10.0000 F7200", "G1 Z0.2000 F600"]
+    assert "G92 E2.00000" in after and "M82" in after and "G1 F1200" in after
     assert file_commands(port.log, st.stats.extra_commands) == prog.commands
 
 
@@ -253,12 +254,12 @@ async def test_lost_step_pauses_at_transition_and_resume_rehomes_and_rotates():
 @pytest.mark.asyncio
 @pytest.mark.parametrize("good", [0, 3, 4, 6, 9, 17])
 async def test_a_lost_link_leaves_the_acknowledged_count_exact(good: int) -> None:
-    """Batches of four lines (lookahead 16) with the link lost after ``good`` lines: the
+    """Batches of four lines (lookahead 8) with the link lost after ``good`` lines: the
     streamer stops with the link's error and counts exactly the lines acknowledged, also
     when the loss falls inside a batch."""
     prog = parse_program(LAYERED)
     port = FailingPort(good)
-    st = Streamer(port, prog, StreamSettings(lookahead=16))
+    st = Streamer(port, prog, StreamSettings(lookahead=8))
     async with asyncio.timeout(5):
         with pytest.raises(LinkLost):
             await st.run()
@@ -266,6 +267,45 @@ async def test_a_lost_link_leaves_the_acknowledged_count_exact(good: int) -> Non
     assert len(port.log) > good  # lines were out beyond the last acknowledged one
     mark = prog.layer_at(good - 1) if good else prog.layer_at(0)
     assert (st.subpart, st.layer) == ((mark.subpart, mark.layer) if mark else (None, None))
+
+
+class SlowPort(FakePort):
+    """Acknowledges one line per loop turn, in order; counts the lines out at once."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.waiting: deque[asyncio.Future[None]] = deque()
+        self.most_out = 0
+
+    def submit(self, command: str) -> asyncio.Future[None]:
+        self.log.append(command)
+        self.fw.apply(command)
+        fut = asyncio.get_running_loop().create_future()
+        self.waiting.append(fut)
+        self.most_out = max(self.most_out, len(self.waiting))
+        if len(self.waiting) == 1:
+            asyncio.get_running_loop().call_soon(self._ack_one)
+        return fut
+
+    def _ack_one(self) -> None:
+        self.waiting.popleft().set_result(None)
+        if self.waiting:
+            asyncio.get_running_loop().call_soon(self._ack_one)
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize(("lookahead", "most"), [(1, 1), (2, 2), (5, 4), (16, 16)])
+async def test_at_most_lookahead_lines_are_out(lookahead: int, most: int) -> None:
+    """However slowly the lines are acknowledged, the streamer keeps the link fed with up to
+    ``lookahead`` lines submitted and not yet acknowledged, never more: whole batches of half
+    the lookahead (two of two lines for a lookahead of 5)."""
+    prog = parse_program(LAYERED)
+    port = SlowPort()
+    st = Streamer(port, prog, StreamSettings(lookahead=lookahead))
+    async with asyncio.timeout(5):
+        assert await st.run() == "completed"
+    assert port.log == prog.commands
+    assert port.most_out == most
 
 
 @pytest.mark.asyncio
