@@ -8,6 +8,10 @@ compares two versions; ``floor_us_per_wakeup`` tells the slow spells). Printed p
 daemon's CPU share and CPU milliseconds per 1000 lines in both phases, the lines acknowledged
 per read, the wire share and the floor; then the mean and median of each per version.
 Without ``--base`` it says so and exits.
+
+``--together`` runs the two benches at the same time instead (each with its own emulator,
+the four processes on this machine's cores), so both meet the same spell of the VM; printed
+per round and summed up: the ratio this/base of the CPU per 1000 lines in each phase.
 """
 
 from __future__ import annotations
@@ -25,20 +29,52 @@ FIGURES = {"watch_cpu_pct": "watch%", "stream_cpu_pct": "stream%",
            "floor_us_per_wakeup": "floor_us"}
 
 
-def run(checkout: Path) -> dict[str, float]:
-    """One run of ``checkout``'s ``bench/daemon.py``: its figures by name."""
-    done = subprocess.run([sys.executable, str(checkout / "bench" / "daemon.py")],
-                          capture_output=True, text=True, cwd=checkout, check=False)
+def start(checkout: Path) -> subprocess.Popen[str]:
+    """``checkout``'s own ``bench/daemon.py``, started."""
+    return subprocess.Popen([sys.executable, str(checkout / "bench" / "daemon.py")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=checkout)
+
+
+def figures_of(checkout: Path, proc: subprocess.Popen[str]) -> dict[str, float]:
+    """The figures by name of a started bench, once it has finished."""
+    stdout, stderr = proc.communicate()
     figures: dict[str, float] = {}
-    for line in done.stdout.splitlines():
+    for line in stdout.splitlines():
         parts = line.split()
         if len(parts) >= 2 and parts[0] in FIGURES:
             figures[parts[0]] = float(parts[1])
     missing = FIGURES.keys() - figures.keys()
     if missing:
         raise SystemExit(f"{checkout}: bench/daemon.py gave no {', '.join(sorted(missing))}\n"
-                         + done.stdout + done.stderr)
+                         + stdout + stderr)
     return figures
+
+
+def run(checkout: Path) -> dict[str, float]:
+    """One run of ``checkout``'s ``bench/daemon.py``: its figures by name."""
+    return figures_of(checkout, start(checkout))
+
+
+RATIOS = ("watch_cpu_ms_per_1000_lines", "stream_cpu_ms_per_1000_lines")
+
+
+def together(base: Path, here: Path, rounds: int) -> None:
+    """Both benches at once, ``rounds`` times: the ratios this/base of the CPU per line."""
+    ratios: dict[str, list[float]] = {key: [] for key in RATIOS}
+    for _ in range(rounds):
+        procs = {"base": start(base), "this": start(here)}
+        figs = {"base": figures_of(base, procs["base"]), "this": figures_of(here, procs["this"])}
+        for tag in ("base", "this"):
+            print(line(tag, figs[tag]))
+        for key in RATIOS:
+            ratios[key].append(figs["this"][key] / figs["base"][key])
+        print("  ratio " + " ".join(f"{FIGURES[k]} {ratios[k][-1]:.3f}" for k in RATIOS),
+              flush=True)
+    for key, values in ratios.items():
+        print(f"{FIGURES[key]:>9} this/base: geometric mean {statistics.geometric_mean(values):.3f}"
+              f", median {statistics.median(values):.3f}, range {min(values):.3f}–"
+              f"{max(values):.3f} ({len(values)} rounds)")
 
 
 def line(tag: str, fig: dict[str, float]) -> str:
@@ -49,6 +85,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--base", type=Path, help="the other checkout")
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--together", action="store_true",
+                        help="run the two benches at the same time (paired ratios)")
     args = parser.parse_args()
     if args.base is None:
         print("nothing to compare: give --base CHECKOUT (another version of this repository)")
@@ -56,6 +94,9 @@ def main() -> None:
     if not (args.base / "bench" / "daemon.py").is_file():
         sys.exit(f"--base {args.base}: not a checkout of this repository (no bench/daemon.py)")
     here = HERE.parents[1]
+    if args.together:
+        together(args.base, here, args.rounds)
+        return
     runs: dict[str, list[dict[str, float]]] = {"base": [], "this": []}
     for k in range(args.rounds):
         order = [("base", args.base), ("this", here)]

@@ -117,12 +117,13 @@ class DirectSerialTransport(serial_asyncio.SerialTransport):
     def _hold_or_watch(self, data: bytes) -> None:
         """``data`` just arrived and was handled: hold the next read, or watch the port."""
         assert self._hold is not None
-        hold = self._hold.after_data(self._loop.time(), data.count(b"\n"))
+        now = self._loop.time()
+        hold = self._hold.after_data(now, data.count(b"\n"))
         if self._closing:
             return
         if hold:
             self._remove_reader()
-            self._held = self._loop.call_later(hold, self._read_held)
+            self._held = self._loop.call_at(now + hold, self._read_held)
         else:
             self._ensure_reader()
 
