@@ -313,3 +313,23 @@ def test_resends_reach_back_history_size_lines_and_no_further() -> None:
         p.receive("ok", 0.1)
     (error,) = failures(p.receive("Resend: 5", 0.2))
     assert isinstance(error, HistoryExhausted) and "line 5" in str(error)
+
+
+@pytest.mark.parametrize("many", [False, True])
+def test_lines_framed_ahead_are_framed_again_when_a_nudge_takes_their_number(
+        many: bool) -> None:
+    """Lines are framed when submitted, with the numbers they will most likely get. A
+    timeout's M105 nudge takes the next number first: the lines still waiting then go out
+    numbered after it, each with its own valid checksum."""
+    p = ready(ok_timeout=1.0, rx_buffer_bytes=40, partial_lines=False)
+    commands = [f"G1 X{i} Y{i} E0.1" for i in range(6)]
+    first = writes(p.submit_many(commands, 0.0)[1] if many else
+                   [a for c in commands for a in p.submit(c, 0.0)[1]])
+    assert first == [frame(1, commands[0]), frame(2, commands[1])]  # the window holds two
+    out = writes(p.tick(1.0))  # the credit released: the nudge, then the next line
+    out += writes(p.receive_lines([b"ok", b"ok", b"ok T:20.0 /0.0"], 1.1))
+    for k in range(10):  # one ok a read until every line is acknowledged
+        if p.last_acked == len(commands):
+            break
+        out += writes(p.receive_lines([b"ok"], 1.2 + k / 10))
+    assert out == [frame(3, "M105")] + [frame(n, c) for n, c in enumerate(commands[2:], 4)]
