@@ -146,7 +146,7 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                     2.0, lo=0.05, hi=60),
         "handshake_attempts": Number("M110 N0 attempts before connecting fails.", 5, lo=1,
                                      hi=100, integer=True),
-        "max_queued": Number("Job lines submitted ahead of their acknowledgements.", 64,
+        "max_queued": Number("Most job lines submitted ahead of their acknowledgements.", 64,
                              lo=1, hi=100000, integer=True),
     },
     "transition": {
