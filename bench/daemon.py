@@ -19,7 +19,8 @@ Targets: RSS < 80 MB idle, daemon streaming CPU < 10 % of a core (both phases), 
 
 ``acked_lines_per_read`` is the lines acknowledged per read of the port in the second phase
 (``serial.read_hold`` batches the ``ok`` while the wire is the bottleneck; ``--read-hold 0``
-reads each at once).
+reads each at once). The firmware's receive buffer sets how many a read can take in:
+``--rx-buffer BYTES`` gives the emulator and hostd another size than hostd's default.
 
 Last, ``floor_us_per_wakeup`` is :mod:`wakeup`'s bare asyncio wake-up and write per ``ok``
 (no hostd code) on this machine right after: a shared VM's speed drifts, and this tells a
@@ -46,10 +47,12 @@ import wakeup
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from hostd.link.settings import LinkSettings  # noqa: E402
 
 TARGETS = {"idle_rss_mb": 80.0, "watch_cpu_pct": 10.0, "stream_cpu_pct": 10.0,
            "status_p99_ms": 10.0}
 BAUD = 250000
+RX_BUFFER = LinkSettings().rx_buffer_bytes  # hostd's default (Marlin's 128-byte ring)
 READY = "ready (socket"
 SETTLE_S = 2.0  # idle time before the RSS figure
 
@@ -104,11 +107,11 @@ class Client:
                 return msg["result"]
 
 
-async def spawn_emulator() -> tuple[asyncio.subprocess.Process, str]:
+async def spawn_emulator(rx_buffer: int) -> tuple[asyncio.subprocess.Process, str]:
     """``hostd-sim --pty`` in its own process, the wire throttled to ``BAUD``."""
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "hostd.sim.main", "--pty", "--throttle", "--baud", str(BAUD),
-        stdout=asyncio.subprocess.PIPE, cwd=str(ROOT))
+        "--rx-buffer-bytes", str(rx_buffer), stdout=asyncio.subprocess.PIPE, cwd=str(ROOT))
     assert proc.stdout is not None
     path = (await proc.stdout.readline()).decode().strip()
     if not path:
@@ -117,7 +120,7 @@ async def spawn_emulator() -> tuple[asyncio.subprocess.Process, str]:
 
 
 async def spawn_daemon(tmp: Path, port: str, profile: str | None, partial: bool,
-                       read_hold: float
+                       read_hold: float, rx_buffer: int
                        ) -> tuple[asyncio.subprocess.Process, asyncio.Task[None]]:
     cfg = tmp / "hostd.yaml"
     cfg.write_text(json.dumps({
@@ -125,8 +128,8 @@ async def spawn_daemon(tmp: Path, port: str, profile: str | None, partial: bool,
                    "log_level": "info"},
         "metrics": {"enabled": False},
         "serial": {"port": port, "baud": BAUD, "partial_lines": partial,
-                   "read_hold": read_hold},
-        "sim": {"throttle": True}}))
+                   "read_hold": read_hold, "rx_buffer_bytes": rx_buffer},
+        "sim": {"throttle": True, "rx_buffer_bytes": rx_buffer}}))
     prof = ["-m", "cProfile", "-o", profile] if profile else []
     proc = await asyncio.create_subprocess_exec(
         sys.executable, *prof, "-m", "hostd.main", "--config", str(cfg),
@@ -241,13 +244,13 @@ def wire_limit(text: str, first: int, last: int) -> float:
 
 
 async def bench(tmp: Path, in_process: bool, profile: str | None,
-                partial: bool, read_hold: float) -> dict[str, float]:
+                partial: bool, read_hold: float, rx_buffer: int) -> dict[str, float]:
     emu = None
     port = "sim://"
     if not in_process:
-        emu, port = await spawn_emulator()
+        emu, port = await spawn_emulator(rx_buffer)
     try:
-        proc, drain = await spawn_daemon(tmp, port, profile, partial, read_hold)
+        proc, drain = await spawn_daemon(tmp, port, profile, partial, read_hold, rx_buffer)
         try:
             r, w = await asyncio.open_unix_connection(str(tmp / "hostd.sock"))
             c = Client(r, w)
@@ -279,16 +282,19 @@ def main() -> int:
     ap.add_argument("--read-hold", type=float, default=0.7,
                     help="serial.read_hold (share of the wire time still queued that a "
                          "real port is left unread while oks arrive quickly; 0: each at once)")
+    ap.add_argument("--rx-buffer", type=int, default=RX_BUFFER, metavar="BYTES",
+                    help="the firmware's receive buffer, for the emulator and "
+                         f"serial.rx_buffer_bytes (default {RX_BUFFER}, as hostd's)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="hostd-bench-") as name:
         res = asyncio.run(bench(Path(name), args.in_process, args.profile, args.partial_lines,
-                                 args.read_hold))
+                                 args.read_hold, args.rx_buffer))
     res["floor_us_per_wakeup"] = 1e6 * wakeup.measure(3000, 0.00168, write=True)[0]
     mode = "in-process sim:// (CPU includes the emulator)" if args.in_process else \
         "emulator in its own process on a pty"
     print(f"hostd daemon bench, {BAUD} baud, {mode}, "
           f"partial lines {'on' if args.partial_lines else 'off'}, "
-          f"read hold {args.read_hold:g}")
+          f"read hold {args.read_hold:g}, receive buffer {args.rx_buffer} bytes")
     for key, value in res.items():
         target = TARGETS.get(key)
         mark = "" if target is None else (" ok" if value < target else " OVER TARGET")
