@@ -122,8 +122,11 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "baud": Number("Baud rate.", 115200, lo=1200, hi=4000000, integer=True),
         "flow_control": Text("window (buffer credit) or pingpong (one line in flight).",
                              "window", choices=("window", "pingpong")),
-        "rx_buffer_bytes": Number("Firmware receive buffer the window may fill, bytes.", 127,
-                                  lo=16, hi=65536, integer=True),
+        "rx_buffer_bytes": Number("Firmware receive buffer the window may fill, bytes: "
+                                  "Marlin's RX_BUFFER_SIZE less one (127 for its default of "
+                                  "128), never more than the board has. A board built with a "
+                                  "larger buffer lets hostd read the port less often while it "
+                                  "streams.", 127, lo=16, hi=65536, integer=True),
         "partial_lines": Flag("Window mode: send the first part of the next line when the "
                               "credit is short of the whole line (fills the receive buffer "
                               "to the byte); false: whole lines only.", True),
