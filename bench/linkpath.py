@@ -13,6 +13,13 @@ lines are acknowledged, as a status poll at 20 Hz does at 250000 baud. Printed:
 
 - ``bytecodes_per_line``: Python bytecodes executed per line (a trace count, the same on
   every run and every machine: it moves only when the code does);
+- ``distinct_bytecodes_per_read``: the bytecodes (code object and offset) a read runs, each
+  counted once per read however often it runs (the same on every run). On a cold CPU an
+  instruction costs most the first time a wake-up runs it, so this is the count that should
+  follow the live figure. On 2026-12-03 the live figure rose with the straight-line work
+  that three patches added per read (judged with ``bench/ab_daemon.py --together``), but a
+  cut of about an eighth of the bytecodes per line moved it by less than the noise: treat
+  this as a guide, not a measure;
 - ``warm_us_per_line``: wall microseconds per line, the best of three runs, the replies
   handed over as soon as the loop turns;
 - ``cold_cpu_us_per_line``: CPU microseconds per line (the process's) when the replies come
@@ -168,6 +175,35 @@ def count_bytecodes(text: str, per_read: int) -> tuple[Counter[str], int]:
     return counts, lines
 
 
+def footprint_per_read(text: str, per_read: int) -> tuple[float, Counter[str]]:
+    """Distinct bytecodes (code object and offset) executed per read, on average, and their
+    count per read by function.
+
+    A read here is everything from one ``data_received`` of the port's replies to the next:
+    the link, the protocol, the streamer when its batch is acknowledged, the loop's own
+    Python. On a cold CPU an instruction costs most the first time a wake-up runs it, and
+    little when a loop runs it again: this counts each once per read.
+    """
+    reads: list[set[tuple[int, int]]] = [set()]
+    start = LineReceiver.data_received.__code__
+    codes: dict[int, str] = {}
+
+    def tracer(frame: FrameType, event: str, arg: object) -> Callable[..., Any]:
+        frame.f_trace_opcodes = True
+        code = frame.f_code
+        if event == "call" and code is start:
+            reads.append(set())
+        elif event == "opcode":
+            reads[-1].add((id(code), frame.f_lasti))
+            codes.setdefault(id(code), f"{Path(code.co_filename).name}:{code.co_name}")
+        return tracer
+
+    asyncio.run(stream(text, per_read, tracer))
+    counted = reads[2:-1]  # not the connection, the first read or the end of the stream
+    by_function: Counter[str] = Counter(codes[c] for sites in counted for c, _ in sites)
+    return sum(map(len, counted)) / len(counted), by_function
+
+
 def cold_us_per_line(text: str, per_read: int, gap: float) -> float:
     """Process CPU microseconds per line, the replies paced by ``gap``."""
     cpu = time.process_time()
@@ -219,14 +255,20 @@ def main() -> int:
     runs = [asyncio.run(stream(text, args.per_read)) for _ in range(3)]
     lines = runs[0][1]
     counts, _ = count_bytecodes(text, args.per_read)
+    footprint, sites = footprint_per_read(text, args.per_read)
     cold = cold_us_per_line(cold_text, args.per_read, args.gap)
     print(f"linkpath bench: {lines} lines, one ok each, {args.per_read} per read, no port")
     print(f"{'bytecodes_per_line':28} {sum(counts.values()) / lines:10.1f}")
+    print(f"{'distinct_bytecodes_per_read':28} {footprint:10.1f}")
     print(f"{'warm_us_per_line':28} {1e6 * min(s for s, _ in runs) / lines:10.2f}")
     print(f"{'cold_cpu_us_per_line':28} {cold:10.2f}")
     if args.by_function:
         for name, n in counts.most_common(25):
             print(f"  {n / lines:8.1f}  {name}")
+        reads = lines / args.per_read
+        print("distinct bytecodes per read, by function:")
+        for name, n in sites.most_common(25):
+            print(f"  {n / reads:8.1f}  {name}")
     return 0
 
 
