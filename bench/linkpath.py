@@ -50,7 +50,9 @@ from typing import Any
 HERE = Path(__file__).resolve()
 ROOT = Path(sys.argv[sys.argv.index("--root") + 1]).resolve() if "--root" in sys.argv \
     else HERE.parents[1]  # the checkout whose daemon code is measured
-sys.path.insert(0, str(ROOT))
+# that checkout's own bench/daemon.py, which puts its checkout first on the path: this
+# file's neighbour would put this checkout there, and every hostd import would come from it
+sys.path[:0] = [str(ROOT / "bench"), str(ROOT)]
 
 from daemon import synthetic_gcode  # noqa: E402
 
@@ -61,6 +63,9 @@ from hostd.link.settings import link_settings_from_config  # noqa: E402
 from hostd.link.transport import Connection, LineReceiver  # noqa: E402
 from hostd.printer.program import parse_program  # noqa: E402
 from hostd.printer.streamer import Hooks, Streamer  # noqa: E402
+
+if not Path(sys.modules["hostd"].__file__ or "").resolve().is_relative_to(ROOT):
+    raise SystemExit(f"hostd was imported from {sys.modules['hostd'].__file__}, not {ROOT}")
 
 STATUS_EVERY = 30  # lines between two reads of the modal state (20 Hz at ~600 lines/s)
 
