@@ -17,9 +17,9 @@ lines are acknowledged, as a status poll at 20 Hz does at 250000 baud. Printed:
   counted once per read however often it runs (the same on every run). On a cold CPU an
   instruction costs most the first time a wake-up runs it, so this is the count that should
   follow the live figure. On 2026-12-03 the live figure rose with the straight-line work
-  that three patches added per read (judged with ``bench/ab_daemon.py --together``), but a
-  cut of about an eighth of the bytecodes per line moved it by less than the noise: treat
-  this as a guide, not a measure;
+  that three patches added per read (judged with ``bench/ab_daemon.py --together``), and a
+  change that cut an eighth of the bytecodes per line but left this count nearly as it was
+  (1407 against 1423) did not move it: this is the count to cut. A guide, not a measure;
 - ``warm_us_per_line``: wall microseconds per line, the best of three runs, the replies
   handed over as soon as the loop turns;
 - ``cold_cpu_us_per_line``: CPU microseconds per line (the process's) when the replies come
@@ -180,9 +180,9 @@ def count_bytecodes(text: str, per_read: int) -> tuple[Counter[str], int]:
     return counts, lines
 
 
-def footprint_per_read(text: str, per_read: int) -> tuple[float, Counter[str]]:
-    """Distinct bytecodes (code object and offset) executed per read, on average, and their
-    count per read by function.
+def footprint_per_read(text: str, per_read: int) -> tuple[float, dict[str, float]]:
+    """Distinct bytecodes (code object and offset) executed per read, on average, and that
+    mean by function.
 
     A read here is everything from one ``data_received`` of the port's replies to the next:
     the link, the protocol, the streamer when its batch is acknowledged, the loop's own
@@ -205,8 +205,9 @@ def footprint_per_read(text: str, per_read: int) -> tuple[float, Counter[str]]:
 
     asyncio.run(stream(text, per_read, tracer))
     counted = reads[2:-1]  # not the connection, the first read or the end of the stream
-    by_function: Counter[str] = Counter(codes[c] for sites in counted for c, _ in sites)
-    return sum(map(len, counted)) / len(counted), by_function
+    by_function = Counter(codes[c] for sites in counted for c, _ in sites)
+    mean = {name: n / len(counted) for name, n in by_function.most_common()}
+    return sum(map(len, counted)) / len(counted), mean
 
 
 def cold_us_per_line(text: str, per_read: int, gap: float) -> float:
@@ -270,10 +271,9 @@ def main() -> int:
     if args.by_function:
         for name, n in counts.most_common(25):
             print(f"  {n / lines:8.1f}  {name}")
-        reads = lines / args.per_read
         print("distinct bytecodes per read, by function:")
-        for name, n in sites.most_common(25):
-            print(f"  {n / reads:8.1f}  {name}")
+        for name, n in list(sites.items())[:25]:
+            print(f"  {n:8.1f}  {name}")
     return 0
 
 
