@@ -17,6 +17,7 @@ per round and summed up: the ratio this/base of the CPU per 1000 lines in each p
 from __future__ import annotations
 
 import argparse
+import signal
 import statistics
 import subprocess
 import sys
@@ -51,6 +52,17 @@ def figures_of(checkout: Path, proc: subprocess.Popen[str]) -> dict[str, float]:
     return figures
 
 
+def stop(proc: subprocess.Popen[str]) -> None:
+    """Stop a bench still running: Ctrl-C, so that it stops its daemon and emulator."""
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+
+
 def run(checkout: Path) -> dict[str, float]:
     """One run of ``checkout``'s ``bench/daemon.py``: its figures by name."""
     return figures_of(checkout, start(checkout))
@@ -64,7 +76,12 @@ def together(base: Path, here: Path, rounds: int) -> None:
     ratios: dict[str, list[float]] = {key: [] for key in RATIOS}
     for _ in range(rounds):
         procs = {"base": start(base), "this": start(here)}
-        figs = {"base": figures_of(base, procs["base"]), "this": figures_of(here, procs["this"])}
+        try:
+            figs = {"base": figures_of(base, procs["base"]),
+                    "this": figures_of(here, procs["this"])}
+        finally:  # a bench that failed must not leave the other one running
+            for proc in procs.values():
+                stop(proc)
         for tag in ("base", "this"):
             print(line(tag, figs[tag]))
         for key in RATIOS:
