@@ -7,7 +7,8 @@ and second in even ones (a shared VM's speed drifts within minutes, so only alte
 compares two versions; ``floor_us_per_wakeup`` tells the slow spells). Printed per run: the
 daemon's CPU share and CPU milliseconds per 1000 lines in both phases, the lines acknowledged
 per read, the wire share and the floor; then the mean and median of each per version.
-Without ``--base`` it says so and exits.
+Without ``--base`` it says so and exits. Arguments after ``--`` go to both benches (e.g.
+``-- --advanced-ok``); both checkouts' benches must know them.
 
 ``--together`` runs the two benches at the same time instead (each with its own emulator,
 the four processes on this machine's cores), so both meet the same spell of the VM; printed
@@ -30,9 +31,9 @@ FIGURES = {"watch_cpu_pct": "watch%", "stream_cpu_pct": "stream%",
            "floor_us_per_wakeup": "floor_us"}
 
 
-def start(checkout: Path) -> subprocess.Popen[str]:
-    """``checkout``'s own ``bench/daemon.py``, started."""
-    return subprocess.Popen([sys.executable, str(checkout / "bench" / "daemon.py")],
+def start(checkout: Path, extra: list[str]) -> subprocess.Popen[str]:
+    """``checkout``'s own ``bench/daemon.py``, started with the arguments ``extra``."""
+    return subprocess.Popen([sys.executable, str(checkout / "bench" / "daemon.py"), *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             cwd=checkout)
 
@@ -63,19 +64,19 @@ def stop(proc: subprocess.Popen[str]) -> None:
             proc.communicate()
 
 
-def run(checkout: Path) -> dict[str, float]:
+def run(checkout: Path, extra: list[str]) -> dict[str, float]:
     """One run of ``checkout``'s ``bench/daemon.py``: its figures by name."""
-    return figures_of(checkout, start(checkout))
+    return figures_of(checkout, start(checkout, extra))
 
 
 RATIOS = ("watch_cpu_ms_per_1000_lines", "stream_cpu_ms_per_1000_lines")
 
 
-def together(base: Path, here: Path, rounds: int) -> None:
+def together(base: Path, here: Path, rounds: int, extra: list[str]) -> None:
     """Both benches at once, ``rounds`` times: the ratios this/base of the CPU per line."""
     ratios: dict[str, list[float]] = {key: [] for key in RATIOS}
     for _ in range(rounds):
-        procs = {"base": start(base), "this": start(here)}
+        procs = {"base": start(base, extra), "this": start(here, extra)}
         try:
             figs = {"base": figures_of(base, procs["base"]),
                     "this": figures_of(here, procs["this"])}
@@ -104,6 +105,8 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--together", action="store_true",
                         help="run the two benches at the same time (paired ratios)")
+    parser.add_argument("bench_args", nargs="*", metavar="-- BENCH_ARG",
+                        help="arguments for both benches, after --")
     args = parser.parse_args()
     if args.base is None:
         print("nothing to compare: give --base CHECKOUT (another version of this repository)")
@@ -112,13 +115,13 @@ def main() -> None:
         sys.exit(f"--base {args.base}: not a checkout of this repository (no bench/daemon.py)")
     here = HERE.parents[1]
     if args.together:
-        together(args.base, here, args.rounds)
+        together(args.base, here, args.rounds, args.bench_args)
         return
     runs: dict[str, list[dict[str, float]]] = {"base": [], "this": []}
     for k in range(args.rounds):
         order = [("base", args.base), ("this", here)]
         for tag, checkout in order if k % 2 == 0 else order[::-1]:
-            runs[tag].append(run(checkout))
+            runs[tag].append(run(checkout, args.bench_args))
             print(line(tag, runs[tag][-1]), flush=True)
     for stat in (statistics.mean, statistics.median):
         for tag, figs in runs.items():

@@ -21,6 +21,8 @@ Targets: RSS < 80 MB idle, daemon streaming CPU < 10 % of a core (both phases), 
 (``serial.read_hold`` batches the ``ok`` while the wire is the bottleneck; ``--read-hold 0``
 reads each at once). The firmware's receive buffer sets how many a read can take in:
 ``--rx-buffer BYTES`` gives the emulator and hostd another size than hostd's default.
+``--advanced-ok`` has the emulator answer ``ok N<n> P<p> B<b>``, as a Marlin built with
+ADVANCED_OK does (the README's recommended build; stock Marlin answers a plain ``ok``).
 
 Last, ``floor_us_per_wakeup`` is :mod:`wakeup`'s bare asyncio wake-up and write per ``ok``
 (no hostd code) on this machine right after: a shared VM's speed drifts, and this tells a
@@ -107,11 +109,13 @@ class Client:
                 return msg["result"]
 
 
-async def spawn_emulator(rx_buffer: int) -> tuple[asyncio.subprocess.Process, str]:
+async def spawn_emulator(rx_buffer: int, advanced_ok: bool
+                         ) -> tuple[asyncio.subprocess.Process, str]:
     """``hostd-sim --pty`` in its own process, the wire throttled to ``BAUD``."""
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "hostd.sim.main", "--pty", "--throttle", "--baud", str(BAUD),
-        "--rx-buffer-bytes", str(rx_buffer), stdout=asyncio.subprocess.PIPE, cwd=str(ROOT))
+        "--rx-buffer-bytes", str(rx_buffer), *(["--advanced-ok"] if advanced_ok else []),
+        stdout=asyncio.subprocess.PIPE, cwd=str(ROOT))
     assert proc.stdout is not None
     path = (await proc.stdout.readline()).decode().strip()
     if not path:
@@ -120,7 +124,7 @@ async def spawn_emulator(rx_buffer: int) -> tuple[asyncio.subprocess.Process, st
 
 
 async def spawn_daemon(tmp: Path, port: str, profile: str | None, partial: bool,
-                       read_hold: float, rx_buffer: int
+                       read_hold: float, rx_buffer: int, advanced_ok: bool
                        ) -> tuple[asyncio.subprocess.Process, asyncio.Task[None]]:
     cfg = tmp / "hostd.yaml"
     cfg.write_text(json.dumps({
@@ -129,7 +133,7 @@ async def spawn_daemon(tmp: Path, port: str, profile: str | None, partial: bool,
         "metrics": {"enabled": False},
         "serial": {"port": port, "baud": BAUD, "partial_lines": partial,
                    "read_hold": read_hold, "rx_buffer_bytes": rx_buffer},
-        "sim": {"throttle": True, "rx_buffer_bytes": rx_buffer}}))
+        "sim": {"throttle": True, "rx_buffer_bytes": rx_buffer, "advanced_ok": advanced_ok}}))
     prof = ["-m", "cProfile", "-o", profile] if profile else []
     proc = await asyncio.create_subprocess_exec(
         sys.executable, *prof, "-m", "hostd.main", "--config", str(cfg),
@@ -244,13 +248,15 @@ def wire_limit(text: str, first: int, last: int) -> float:
 
 
 async def bench(tmp: Path, in_process: bool, profile: str | None,
-                partial: bool, read_hold: float, rx_buffer: int) -> dict[str, float]:
+                partial: bool, read_hold: float, rx_buffer: int, advanced_ok: bool
+                ) -> dict[str, float]:
     emu = None
     port = "sim://"
     if not in_process:
-        emu, port = await spawn_emulator(rx_buffer)
+        emu, port = await spawn_emulator(rx_buffer, advanced_ok)
     try:
-        proc, drain = await spawn_daemon(tmp, port, profile, partial, read_hold, rx_buffer)
+        proc, drain = await spawn_daemon(tmp, port, profile, partial, read_hold, rx_buffer,
+                                         advanced_ok)
         try:
             r, w = await asyncio.open_unix_connection(str(tmp / "hostd.sock"))
             c = Client(r, w)
@@ -285,16 +291,19 @@ def main() -> int:
     ap.add_argument("--rx-buffer", type=int, default=RX_BUFFER, metavar="BYTES",
                     help="the firmware's receive buffer, for the emulator and "
                          f"serial.rx_buffer_bytes (default {RX_BUFFER}, as hostd's)")
+    ap.add_argument("--advanced-ok", action="store_true",
+                    help="the emulator answers ok N<n> P<p> B<b> (Marlin's ADVANCED_OK)")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="hostd-bench-") as name:
         res = asyncio.run(bench(Path(name), args.in_process, args.profile, args.partial_lines,
-                                 args.read_hold, args.rx_buffer))
+                                 args.read_hold, args.rx_buffer, args.advanced_ok))
     res["floor_us_per_wakeup"] = 1e6 * wakeup.measure(3000, 0.00168, write=True)[0]
     mode = "in-process sim:// (CPU includes the emulator)" if args.in_process else \
         "emulator in its own process on a pty"
     print(f"hostd daemon bench, {BAUD} baud, {mode}, "
           f"partial lines {'on' if args.partial_lines else 'off'}, "
-          f"read hold {args.read_hold:g}, receive buffer {args.rx_buffer} bytes")
+          f"read hold {args.read_hold:g}, receive buffer {args.rx_buffer} bytes, "
+          f"{'ADVANCED_OK' if args.advanced_ok else 'plain'} oks")
     for key, value in res.items():
         target = TARGETS.get(key)
         mark = "" if target is None else (" ok" if value < target else " OVER TARGET")
