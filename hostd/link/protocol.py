@@ -86,6 +86,7 @@ from hostd.link.replies import (
     Resend,
     Temperatures,
     Wait,
+    parse_advanced_ok,
     parse_reply,
 )
 from hostd.link.settings import LinkSettings
@@ -172,14 +173,20 @@ class Protocol:
         here as ASCII with replacement characters: plain ``ok`` s need no decoding).
         """
         self.counters.reads += 1
-        plain = 0  # plain oks not handled yet: nine replies in ten, handled together
+        run: list[Ok] = []  # oks not handled yet, each executing the next line: nine in ten
         for line in lines:
-            if line in _PLAIN_OK and self.state == "ready" and self._after_resend is None:
-                plain += 1
-                continue
-            if plain:
-                self._plain_oks(plain, now)
-                plain = 0
+            if self.state == "ready" and self._after_resend is None:
+                if line in _PLAIN_OK:
+                    run.append(PLAIN_OK)
+                    continue
+                ok = parse_advanced_ok(line)
+                if ok is not None and ok.line == self._executed + len(run) + 1 \
+                        and ok.line <= self._whole_max():
+                    run.append(ok)
+                    continue
+            if run:
+                self._ok_run(run, now)
+                run = []
             if isinstance(line, bytes):
                 line = line.decode("ascii", "replace")
             reply = parse_reply(line)
@@ -189,8 +196,8 @@ class Protocol:
                 handler(self, reply, now)
             elif self.state == "ready":
                 self._collect(reply)
-        if plain:
-            self._plain_oks(plain, now)
+        if run:
+            self._ok_run(run, now)
         self._pump(now)
         return self._flush()
 
@@ -446,9 +453,10 @@ class Protocol:
         if released:
             self._inflight.release_from(line, keep=self._partial)
 
-    def _plain_oks(self, count: int, now: float) -> None:
-        """:meth:`_on_ok` for ``count`` plain ``ok`` in a row, in ``ready`` with no resend
-        pending: they carry no fields, so each executes the next line sent whole, if any.
+    def _ok_run(self, oks: list[Ok], now: float) -> None:
+        """:meth:`_on_ok` for a run of ``oks`` in a row, in ``ready`` with no resend pending,
+        each executing the next line sent whole, if any: plain ``ok`` s, and ADVANCED_OK's
+        ``ok N<n> P<p> B<b>`` numbered in sequence (``receive_lines`` checks ``n``).
 
         The short path of the daemon's every read. While the transmissions are in line order
         and no reply came since the last ``ok``, the lines are executed in one step that
@@ -458,25 +466,30 @@ class Protocol:
         """
         self._progress = now
         self._nudged = 0
+        for ok in oks:
+            if ok.line is not None and ok.buffer_free is not None:  # in order, as _on_ok
+                self.observed.update(ok)
+                self._note_queue(ok.line, ok.buffer_free)
         first = self._executed + 1
-        line = min(self._executed + count, self._whole_max())
+        line = min(self._executed + len(oks), self._whole_max())
         if line < first:
             return
         sents = None if self._since_ok else self._inflight.pop_run(first, line)
         if sents is None:
             for number in range(first, line + 1):
-                self._execute_through(number, PLAIN_OK, now)
+                self._execute_through(number, oks[number - first], now)
             return
         if sents:
             self.rtt.add_many([now - sent.sent_at for sent in sents])
         self._executed = line
         self.window.grow(line - first + 1)
-        self._ack_run(first, line)
+        self._ack_run(first, line, oks)
         self._trim(line)
 
-    def _ack_run(self, first: int, line: int) -> None:
-        """Answer the queries among lines ``first`` .. ``line`` (each executed by a plain ok,
-        no reply before it) and acknowledge them all, in :meth:`_execute_through`'s order."""
+    def _ack_run(self, first: int, line: int, oks: list[Ok]) -> None:
+        """Answer the queries among lines ``first`` .. ``line`` (each executed by its ok in
+        ``oks``, no reply before it) and acknowledge them all, in :meth:`_execute_through`'s
+        order."""
         history = self._history
         seq = 0
         for number in range(first, line + 1):
@@ -484,7 +497,7 @@ class Protocol:
             if item is not None and item.seq is not None:
                 if item.kind == "query":
                     self._ack(seq)
-                    self._out.append(Answer(item.seq, (PLAIN_OK,)))
+                    self._out.append(Answer(item.seq, (oks[number - first],)))
                 seq = item.seq
         self._ack(seq)
 

@@ -273,6 +273,19 @@ def _temperatures(text: str, low: str) -> Temperatures | None:
 
 
 PLAIN_OK = Ok()  # the reply every plain ``ok`` parses to (shared: it is frozen)
+_ADVANCED_OK_TEXT = re.compile(r"ok N(\d+) P(\d+) B(\d+)\r?")
+_ADVANCED_OK_BYTES = re.compile(rb"ok N(\d+) P(\d+) B(\d+)\r?")
+
+
+def parse_advanced_ok(line: str | bytes) -> Ok | None:
+    """Marlin's ADVANCED_OK reply to a numbered line, ``ok N<n> P<p> B<b>`` exactly, in one
+    regular-expression match: the :class:`Ok` :func:`parse_reply` gives for it, or ``None``
+    for any other line (``parse_reply`` reads every form)."""
+    match = (_ADVANCED_OK_BYTES if isinstance(line, bytes) else _ADVANCED_OK_TEXT).fullmatch(line)
+    if match is None:
+        return None
+    number, planner, slots = match.groups()
+    return Ok(int(number), int(planner), int(slots))
 _PARSERS = (_ok, _resend, _halted, _error, _busy, _wait, _banner, _firmware, _echo,
             _position, _temperatures)
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import random
 from collections.abc import Callable
+from typing import Any
 from unittest.mock import patch
 
 import pytest
@@ -17,7 +18,7 @@ from link_harness import VirtualBench, assert_whole_valid_lines, job_log
 
 from hostd.link.actions import Acked, Action, Answer
 from hostd.link.inflight import InFlight, Sent
-from hostd.link.replies import Ok
+from hostd.link.replies import Ok, parse_advanced_ok
 from hostd.link.settings import LinkSettings
 from hostd.sim.settings import SimSettings
 
@@ -174,35 +175,70 @@ def test_a_host_that_ignores_the_window_is_caught_by_the_emulator() -> None:
 ANY_QUERY = ("M114", "M400", "M105 T0")  # M400 is answered by a plain ok
 
 
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(knobs=faults, length=st.integers(1, 600), every=st.integers(2, 60),
-       partial=st.booleans(), read_every=st.sampled_from([0.0, 0.001, 0.003]))
-def test_oks_read_together_take_the_short_path_to_the_same_outcome(
-        knobs: dict[str, object], length: int, every: int, partial: bool,
-        read_every: float) -> None:
-    """The plain oks of one read are executed in one step (``Protocol._plain_oks``) while the
-    transmissions are in order. Under random faults, with replies read several at a time,
-    the same job with that step and with one ``_execute_through`` per ok (``pop_run``
-    patched to decline) puts the same bytes on the wire at the same moments, answers the
-    same queries with the same replies, acknowledges the same lines in the same order and
-    ends in the same state (round trips and window included)."""
+def assert_same_outcome(knobs: dict[str, object], length: int, every: int, partial: bool,
+                        read_every: float, patched: Callable[[bool, list[Any]], Any]
+                        ) -> tuple[list[Any], list[Any]]:
+    """Run a job with queries twice, under the patch ``patched(True, log)`` (the short path
+    taken) and ``patched(False, log)`` (declined), and check that both put the same bytes
+    on the wire at the same moments, answer the same queries with the same replies,
+    acknowledge the same lines in the same order and end in the same state. Returns the two
+    logs the patches kept."""
     commands = with_queries(tiny_moves(length, int(knobs["seed"])), every, ANY_QUERY)  # type: ignore[call-overload]
     link = LinkSettings(partial_lines=partial, ok_timeout=5.0, nudges=3,
                         rx_buffer_bytes=int(knobs["rx_buffer_bytes"]))  # type: ignore[call-overload]
     runs = []
     for short in (True, False):
         bench = VirtualBench(link, SimSettings(**knobs), read_every=read_every)  # type: ignore[arg-type]
-        calls: list[int] = []
-        with patch.object(InFlight, "pop_run", side_effect=_counted(calls, short),
-                          autospec=True):
+        log: list[Any] = []
+        with patched(short, log):
             assert bench.connect()
             bench.stream(commands, queries=ANY_QUERY)
-        runs.append((bench, calls))
+        runs.append((bench, log))
     (fast, taken), (slow, declined) = runs
     assert fast.outcome.sent == slow.outcome.sent and fast.now == slow.now
     assert _in_order(fast.outcome.events) == _in_order(slow.outcome.events)
     assert fast.protocol.snapshot() == slow.protocol.snapshot()
+    assert (fast.protocol._read_through, fast.protocol._slots_seen) == \
+        (slow.protocol._read_through, slow.protocol._slots_seen)  # the queue credit
+    return taken, declined
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(knobs=faults, length=st.integers(1, 600), every=st.integers(2, 60),
+       partial=st.booleans(), read_every=st.sampled_from([0.0, 0.001, 0.003]))
+def test_oks_read_together_take_the_short_path_to_the_same_outcome(
+        knobs: dict[str, object], length: int, every: int, partial: bool,
+        read_every: float) -> None:
+    """The oks of one read are executed in one step (``Protocol._ok_run``) while the
+    transmissions are in order. Under random faults, with replies read several at a time,
+    the same job with that step and with one ``_execute_through`` per ok (``pop_run``
+    patched to decline) has the same outcome (:func:`assert_same_outcome`; round trips and
+    window included)."""
+    def patched(short: bool, log: list[Any]) -> Any:
+        return patch.object(InFlight, "pop_run", side_effect=_counted(log, short),
+                            autospec=True)
+    taken, declined = assert_same_outcome(knobs, length, every, partial, read_every, patched)
     assert len(taken) == len(declined)  # the same reads met the same choice
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(knobs=faults, length=st.integers(1, 600), every=st.integers(2, 60),
+       partial=st.booleans(), read_every=st.sampled_from([0.0, 0.001, 0.003]))
+def test_advanced_oks_in_sequence_join_the_run_to_the_same_outcome(
+        knobs: dict[str, object], length: int, every: int, partial: bool,
+        read_every: float) -> None:
+    """ADVANCED_OK's ``ok N<n> P<p> B<b>`` numbered in sequence join the run of the read
+    (``parse_advanced_ok`` in ``receive_lines``). Under random faults, the same job with
+    that and with every such ok parsed and handled on its own (``parse_advanced_ok`` patched
+    to decline) has the same outcome (:func:`assert_same_outcome`; the queue credit,
+    ``planner_free`` and ``buffer_free`` included)."""
+    def patched(join: bool, log: list[Any]) -> Any:
+        return patch("hostd.link.protocol.parse_advanced_ok", side_effect=_noted(log, join))
+    joined, declined = assert_same_outcome({**knobs, "advanced_ok": True}, length, every,
+                                           partial, read_every, patched)
+    # the same lines were offered to the short path (a job whose every ADVANCED_OK reply is
+    # lost or out of sequence joins none: the test below shows that a plain job joins them)
+    assert len(joined) == len(declined)
 
 
 @pytest.mark.parametrize("read_every", [0.001, 0.003])
@@ -217,6 +253,30 @@ def test_a_plain_job_takes_the_short_path_for_runs_of_oks(read_every: float) -> 
         bench.stream(commands)
     assert_exactly_once(bench, commands)
     assert sum(taken) >= 0.9 * len(commands) and max(taken) >= 2
+
+
+def test_a_job_with_advanced_ok_takes_the_short_path() -> None:
+    """Without faults, nearly every ADVANCED_OK reply joins a run: the emulator numbers its
+    oks in sequence, so they are handled as plain ones, plus their fields."""
+    commands = tiny_moves(600, 6)
+    bench = VirtualBench(LinkSettings(), SimSettings(advanced_ok=True), read_every=0.003)
+    parsed: list[Ok | None] = []
+    with patch("hostd.link.protocol.parse_advanced_ok", side_effect=_noted(parsed, True)):
+        assert bench.connect()
+        bench.stream(commands)
+    assert_exactly_once(bench, commands)
+    assert sum(ok is not None for ok in parsed) >= len(commands)
+    assert bench.protocol.observed.advanced_ok
+    assert bench.protocol._read_through > 0  # the fields were taken in
+
+
+def _noted(log: list[Ok | None], join: bool) -> Callable[[str | bytes], Ok | None]:
+    """``parse_advanced_ok`` as it is, noting each result, or declining every line."""
+    def parse(line: str | bytes) -> Ok | None:
+        ok = _PARSE_ADVANCED_OK(line) if join else None
+        log.append(ok)
+        return ok
+    return parse
 
 
 def _in_order(events: list[Action]) -> list[tuple[str, object]]:
@@ -249,3 +309,4 @@ def _counted(log: list[int], short: bool) -> Callable[..., list[Sent] | None]:
 
 
 _POP_RUN = InFlight.pop_run
+_PARSE_ADVANCED_OK = parse_advanced_ok
