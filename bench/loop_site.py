@@ -19,10 +19,17 @@ from collections.abc import Callable
 from typing import Any
 
 PREFIX = os.environ.get("HOSTD_LOOP_CPU")
-WRAPPED = {  # module: (class, method) pairs timed as "Class.method"
-    "hostd.link.protocol": [("Protocol", "receive_lines"), ("Protocol", "_pump")],
-    "hostd.link.link": [("SerialLink", "_on_lines"), ("SerialLink", "_apply")],
+WRAPPED = {  # module: (class, method) pairs timed as "Class.method" (plain methods only)
+    "hostd.link.protocol": [("Protocol", "receive_lines"), ("Protocol", "_pump"),
+                            ("Protocol", "submit_many"), ("Protocol", "snapshot")],
+    "hostd.link.link": [("SerialLink", "_on_lines"), ("SerialLink", "_apply"),
+                        ("SerialLink", "status")],
     "hostd.link.transport": [("DirectSerialTransport", "_hold_or_watch")],
+    "hostd.daemon": [("Daemon", "snapshot")],
+    "hostd.jobs.manager": [("JobManager", "status"), ("JobManager", "_on_progress"),
+                           ("JobManager", "_persist")],
+    "hostd.printer.streamer": [("Streamer", "_ack_head"), ("Streamer", "_catch_up")],
+    "hostd.control.server": [("Client", "send")],
 }
 totals: defaultdict[str, list[int]] = defaultdict(lambda: [0, 0])  # name: [calls, ns]
 clock = time.thread_time_ns
@@ -57,9 +64,10 @@ def install() -> None:
             for cls, method in pending.pop(module):
                 owner = getattr(sys.modules[module], cls)
                 setattr(owner, method, timed(f"{cls}.{method}", getattr(owner, method)))
+        name = callback_name(self)  # before: a handle cancelled as it runs loses its callback
         start = clock()
         run(self)
-        entry = totals[callback_name(self)]
+        entry = totals[name]
         entry[0] += 1
         entry[1] += clock() - start
 
