@@ -20,7 +20,7 @@ from hostd.control.events import EventBus
 from hostd.control.rpc import PrinterBusy, ShuttingDown
 from hostd.jobs.spool import SUFFIX, Spool, SpoolError, check_gcode, check_stl, upload_kind
 from hostd.jobs.states import TERMINAL, WAITING, JobState, JobStateError
-from hostd.jobs.store import Job, JobStore
+from hostd.jobs.store import Job, JobStore, StoreError
 from hostd.link.errors import FirmwareReset, LinkError, LinkLost
 from hostd.printer.errors import PrinterError, ProgramError
 from hostd.printer.modal import ModalState
@@ -81,6 +81,8 @@ class JobManager:
         self.transitions = {"total": 0, "failed": 0}
         self.recovered: list[int] = []
         self._last: dict[str, Any] | None = None  # figures of the last job that printed
+        self._checkpoint: asyncio.Task[None] | None = None  # the database's, on a thread
+        self.checkpoints = 0
 
     # -- life cycle ------------------------------------------------------------------------
 
@@ -107,6 +109,8 @@ class JobManager:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        if self._checkpoint is not None:  # its thread must be done before the store closes
+            await asyncio.gather(self._checkpoint, return_exceptions=True)
         act = self.active
         if act is not None:
             self._persist(act, force=True)
@@ -372,6 +376,18 @@ class JobManager:
         self.store.update(act.job.id, acked_lines=st.acked, subpart=st.subpart, layer=st.layer,
                           modal=st.modal.snapshot(), filament_mm=st.modal.extruded,
                           print_seconds=act.elapsed(act.last_persist))
+        if self.store.claim_checkpoint() and not self._stopping and (
+                self._checkpoint is None or self._checkpoint.done()):
+            self._checkpoint = asyncio.create_task(self._run_checkpoint(), name="checkpoint")
+
+    async def _run_checkpoint(self) -> None:
+        """The database's checkpoint on a worker thread: its fsync never holds the loop."""
+        try:
+            await asyncio.to_thread(self.store.checkpoint)
+        except StoreError as exc:
+            log.warning("%s (the next one retries)", exc)
+            return
+        self.checkpoints += 1
 
     def _on_paused(self, st: Streamer, reason: str) -> None:
         act = self.active
@@ -484,7 +500,7 @@ class JobManager:
                 "counts": dict(self.counts), "finished": dict(self.finished),
                 "transitions": dict(self.transitions), "current": current,
                 "latest": None if latest is None else dict(latest),
-                "recovered": list(self.recovered)}
+                "recovered": list(self.recovered), "db_checkpoints": self.checkpoints}
 
 
 def eta(estimate_s: float | None, ratio: float, elapsed: float, start_ratio: float

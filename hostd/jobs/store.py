@@ -3,6 +3,13 @@
 The schema is versioned with ``PRAGMA user_version`` (no migrations: a database of another
 version is refused with a clear error). Writes are single small statements, each its own
 transaction, so a SIGKILL leaves the last committed progress and state on disk.
+
+No commit copies the write-ahead log back into the database: SQLite's automatic checkpoint
+would do so inside the commit that fills a thousand pages, on the event loop, with an fsync
+of the database file, while a job streams (`bench/store.py`: such a commit took 18–23 ms on
+the project's VM, where hostd's longest took 0.8–1.2 ms; an SD card syncs far more slowly).
+The owner asks :meth:`JobStore.claim_checkpoint` after its writes and runs
+:meth:`JobStore.checkpoint`, which uses a connection of its own, on a worker thread.
 """
 
 from __future__ import annotations
@@ -18,6 +25,8 @@ from typing import Any
 from hostd.jobs.states import ACTIVE, TERMINAL, WAITING, JobState, check_transition
 
 SCHEMA_VERSION = 1
+CHECKPOINT_CHANGES = 500
+"""Rows written between two checkpoints (a page of the log or so each: 2 MB of log)."""
 
 _DDL = """
 CREATE TABLE IF NOT EXISTS jobs (
@@ -139,17 +148,23 @@ class JobStore:
         The database file; ``":memory:"`` for tests.
     clock
         Seconds since the epoch (injectable for tests).
+    checkpoint_changes
+        Rows written between two checkpoints (:meth:`claim_checkpoint`).
     """
 
-    def __init__(self, path: str | Path, clock: Any = time.time) -> None:
+    def __init__(self, path: str | Path, clock: Any = time.time,
+                 checkpoint_changes: int = CHECKPOINT_CHANGES) -> None:
         self.path = str(path)
         self._clock = clock
+        self._checkpoint_changes = checkpoint_changes
+        self._claimed = 0  # total changes when the last checkpoint was claimed
         try:
             self._db = sqlite3.connect(self.path, isolation_level=None,
                                        check_same_thread=False)
             self._db.row_factory = sqlite3.Row
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.execute("PRAGMA wal_autocheckpoint=0")  # see the module docstring
             self._db.execute("PRAGMA foreign_keys=ON")
             self._init_schema()
         except sqlite3.Error as exc:
@@ -165,6 +180,39 @@ class JobStore:
 
     def close(self) -> None:
         self._db.close()
+
+    def claim_checkpoint(self) -> bool:
+        """True, once, when ``checkpoint_changes`` rows were written since the last claim:
+        the caller then runs :meth:`checkpoint` off the event loop."""
+        changes = self._db.total_changes
+        if changes - self._claimed < self._checkpoint_changes:
+            return False
+        self._claimed = changes
+        return True
+
+    def checkpoint(self) -> tuple[int, int]:
+        """Copy the write-ahead log into the database (``wal_checkpoint(PASSIVE)``: it waits
+        for no lock, and what it cannot copy now waits for the next one).
+
+        It opens a connection of its own, so it may run on a worker thread while this store
+        writes on. Returns the frames in the log and those copied ((0, 0) in memory).
+
+        Raises
+        ------
+        StoreError
+            The database cannot be opened or checkpointed.
+        """
+        if self.path == ":memory:":
+            return 0, 0
+        try:
+            db = sqlite3.connect(self.path, isolation_level=None)
+            try:
+                _busy, frames, copied = db.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone()
+            finally:
+                db.close()
+        except sqlite3.Error as exc:
+            raise StoreError(f"{self.path}: checkpoint failed: {exc}") from None
+        return int(frames), int(copied)
 
     # -- jobs ------------------------------------------------------------------------------
 

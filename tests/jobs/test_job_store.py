@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import hashlib
 import sqlite3
+import threading
 
 import pytest
 from hypothesis import given
@@ -9,6 +10,7 @@ from hypothesis import strategies as st
 
 from hostd.jobs import JobNotFound, JobState, JobStateError, JobStore, Spool, SpoolError
 from hostd.jobs.states import ALLOWED, TERMINAL, can_transition, check_transition
+from hostd.jobs.store import StoreError
 
 SHA = "a" * 64
 
@@ -144,3 +146,71 @@ def test_spool_content_addressed(tmp_path):
     sp.remove(digest, ".gcode")
     with pytest.raises(SpoolError, match="missing"):
         sp.read(digest, ".gcode")
+
+
+def _progress(store: JobStore, job_id: int, count: int, start: int = 0) -> None:
+    for n in range(start, start + count):
+        store.update(job_id, acked_lines=n, layer=n // 10, modal={"position": {"X": n / 10}})
+
+
+def test_commits_leave_the_log_to_the_checkpoint(tmp_path):
+    """No commit copies the write-ahead log back (SQLite's own checkpoint would, at 1000
+    pages, inside a commit on the event loop): the log holds every write until checkpoint()
+    copies it all, and then starts afresh."""
+    store = JobStore(tmp_path / "jobs.db")
+    job = store.add("part.gcode", "gcode", SHA, gcode_sha=SHA)
+    _progress(store, job.id, 1500)
+    frames, copied = store.checkpoint()
+    assert frames >= 1500 and copied == frames
+    _progress(store, job.id, 10, start=1500)
+    frames, copied = store.checkpoint()
+    assert 10 <= frames < 100 and copied == frames  # the log restarted after the copy
+    store.close()
+    assert JobStore(tmp_path / "jobs.db").get(job.id).acked_lines == 1509
+
+
+def test_a_checkpoint_is_claimed_once_per_batch_of_writes(tmp_path):
+    store = JobStore(tmp_path / "jobs.db", checkpoint_changes=50)
+    job = store.add("part.gcode", "gcode", SHA, gcode_sha=SHA)
+    claims = []
+    for n in range(200):
+        _progress(store, job.id, 1, start=n)
+        claims.append(store.claim_checkpoint())
+    # the add wrote two rows (the job and its history), then one row per update
+    assert [n for n, claimed in enumerate(claims) if claimed] == [47, 97, 147, 197]
+    assert JobStore(":memory:").checkpoint() == (0, 0)
+    store.close()
+
+
+def test_a_checkpoint_on_another_thread_loses_no_write(tmp_path):
+    """The checkpoint uses a connection of its own, so it runs on a worker thread while the
+    store's connection writes on; every write is there afterwards."""
+    store = JobStore(tmp_path / "jobs.db")
+    job = store.add("part.gcode", "gcode", SHA, gcode_sha=SHA)
+    done: list[tuple[int, int]] = []
+    errors: list[BaseException] = []
+
+    def checkpoints() -> None:
+        try:
+            for _ in range(20):
+                done.append(store.checkpoint())
+        except BaseException as exc:  # reported by the assertion below
+            errors.append(exc)
+
+    worker = threading.Thread(target=checkpoints)
+    worker.start()
+    _progress(store, job.id, 2000)
+    worker.join(timeout=60)
+    assert not worker.is_alive() and errors == [] and len(done) == 20
+    store.close()
+    reopened = JobStore(tmp_path / "jobs.db")
+    assert reopened.get(job.id).acked_lines == 1999
+    assert reopened.checkpoint()[1] >= 0
+
+
+def test_a_failed_checkpoint_is_a_store_error(tmp_path):
+    store = JobStore(tmp_path / "jobs.db")
+    store.path = str(tmp_path / "missing" / "jobs.db")  # cannot be opened
+    with pytest.raises(StoreError, match="checkpoint failed"):
+        store.checkpoint()
+    store.close()
