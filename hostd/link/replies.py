@@ -286,6 +286,8 @@ def parse_advanced_ok(line: str | bytes) -> Ok | None:
         return None
     number, planner, slots = match.groups()
     return Ok(int(number), int(planner), int(slots))
+
+
 _PARSERS = (_ok, _resend, _halted, _error, _busy, _wait, _banner, _firmware, _echo,
             _position, _temperatures)
 
