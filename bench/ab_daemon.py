@@ -6,7 +6,7 @@ Each round runs each checkout's own ``bench/daemon.py`` once, the base first in 
 and second in even ones (a shared VM's speed drifts within minutes, so only alternation
 compares two versions; ``floor_us_per_wakeup`` tells the slow spells). Printed per run: the
 daemon's CPU share and CPU milliseconds per 1000 lines in both phases, the lines acknowledged
-per read, the wire share and the floor; then the mean and median of each per version.
+per read, the wire share in both phases and the floor; then the mean and median of each per version.
 Without ``--base`` it says so and exits. Arguments after ``--`` go to both benches (e.g.
 ``-- --advanced-ok``); both checkouts' benches must know them.
 
@@ -27,7 +27,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve()
 FIGURES = {"watch_cpu_pct": "watch%", "stream_cpu_pct": "stream%",
            "watch_cpu_ms_per_1000_lines": "watch_ms", "stream_cpu_ms_per_1000_lines": "stream_ms",
-           "acked_lines_per_read": "per_read", "wire_share_pct": "wire%",
+           "acked_lines_per_read": "per_read", "watch_wire_share_pct": "wwire%",
+           "wire_share_pct": "wire%",
            "floor_us_per_wakeup": "floor_us"}
 
 

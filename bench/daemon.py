@@ -23,6 +23,9 @@ reads each at once). The firmware's receive buffer sets how many a read can take
 ``--rx-buffer BYTES`` gives the emulator and hostd another size than hostd's default.
 ``--advanced-ok`` has the emulator answer ``ok N<n> P<p> B<b>``, as a Marlin built with
 ADVANCED_OK does (the README's recommended build; stock Marlin answers a plain ``ok``).
+``--upload LINES`` has another client submit a G-code job of about that many lines as the
+first phase begins (an operator queueing the next part): ``upload_s`` is its round trip, and
+``watch_wire_share_pct`` shows whether the stream kept the wire full meanwhile.
 
 Last, ``floor_us_per_wakeup`` is :mod:`wakeup`'s bare asyncio wake-up and write per ``ok``
 (no hostd code) on this machine right after: a shared VM's speed drifts, and this tells a
@@ -157,14 +160,19 @@ WATCH_FROM, WATCH_UNTIL = 0.05, 0.45  # the first phase follows the job by its e
 POLL_UNTIL = 0.9
 
 
-async def stream_and_measure(c: Client, sock: Path, pids: dict[str, int]) -> dict[str, float]:
+async def stream_and_measure(c: Client, sock: Path, pids: dict[str, int],
+                             upload: int) -> dict[str, float]:
     """Submit a job; measure while a client follows its events, then while one polls."""
     text = synthetic_gcode(subparts=3, layers=40, per_layer=200)
     watcher = Client(*await asyncio.open_unix_connection(str(sock)))
     await watcher.call("events.subscribe", events=WATCHED)
     job = await c.call("job.submit", name="bench.gcode", data=text, encoding="text")
+    started = asyncio.Event()
+    uploading = asyncio.create_task(submit_when(started, sock, upload)) if upload else None
     async with asyncio.timeout(300):  # the job streams in ~40 s: no events means a fault
-        out, watched = await watch(watcher, pids)
+        out, watched = await watch(watcher, pids, started)
+        if uploading is not None:
+            out["upload_s"] = await uploading
     watcher.w.close()
     polled, polled_span = await poll(c, pids)
     out |= polled
@@ -177,10 +185,23 @@ async def stream_and_measure(c: Client, sock: Path, pids: dict[str, int]) -> dic
     return out
 
 
-async def watch(c: Client, pids: dict[str, int]
+async def submit_when(started: asyncio.Event, sock: Path, lines: int) -> float:
+    """Once ``started`` is set, submit a job of about ``lines`` lines from a client of its
+    own; the seconds its submission took."""
+    text = synthetic_gcode(subparts=1, layers=max(1, lines // 200), per_layer=200)
+    uploader = Client(*await asyncio.open_unix_connection(str(sock), limit=1 << 20))
+    await started.wait()
+    t0 = time.monotonic()
+    await uploader.call("job.submit", name="next.gcode", data=text, encoding="text")
+    uploader.w.close()
+    return time.monotonic() - t0
+
+
+async def watch(c: Client, pids: dict[str, int], started: asyncio.Event
                 ) -> tuple[dict[str, float], tuple[int, int]]:
-    """CPU while the only client follows the job by its pushed events (``hostctl print
-    --wait``), from ``WATCH_FROM`` to ``WATCH_UNTIL`` of the job."""
+    """CPU while the only client following the job does so by its pushed events (``hostctl
+    print --wait``), from ``WATCH_FROM`` to ``WATCH_UNTIL`` of the job; ``started`` is set
+    as it begins."""
     start: tuple[dict[str, float], float, int] | None = None
     while True:
         msg = json.loads(await c.r.readline())
@@ -192,6 +213,7 @@ async def watch(c: Client, pids: dict[str, int]
         if start is None:
             start = ({k: cpu_seconds(p) for k, p in pids.items()}, time.monotonic(),
                      params["acked"])
+            started.set()
         elif params["progress"] >= WATCH_UNTIL:
             break
     c0, t0, acked0 = start
@@ -248,8 +270,8 @@ def wire_limit(text: str, first: int, last: int) -> float:
 
 
 async def bench(tmp: Path, in_process: bool, profile: str | None,
-                partial: bool, read_hold: float, rx_buffer: int, advanced_ok: bool
-                ) -> dict[str, float]:
+                partial: bool, read_hold: float, rx_buffer: int, advanced_ok: bool,
+                upload: int) -> dict[str, float]:
     emu = None
     port = "sim://"
     if not in_process:
@@ -264,7 +286,7 @@ async def bench(tmp: Path, in_process: bool, profile: str | None,
             await asyncio.sleep(SETTLE_S)  # let the daemon settle before the idle figure
             out = {"idle_rss_mb": rss_mb(proc.pid)}
             pids = {"stream": proc.pid} | ({"emulator": emu.pid} if emu else {})
-            out |= await stream_and_measure(c, tmp / "hostd.sock", pids)
+            out |= await stream_and_measure(c, tmp / "hostd.sock", pids, upload)
             w.close()
         finally:
             proc.send_signal(signal.SIGINT if profile else signal.SIGTERM)
@@ -293,10 +315,14 @@ def main() -> int:
                          f"serial.rx_buffer_bytes (default {RX_BUFFER}, as hostd's)")
     ap.add_argument("--advanced-ok", action="store_true",
                     help="the emulator answers ok N<n> P<p> B<b> (Marlin's ADVANCED_OK)")
+    ap.add_argument("--upload", type=int, default=0, metavar="LINES",
+                    help="another client submits a job of about LINES lines as the first "
+                         "phase begins")
     args = ap.parse_args()
     with tempfile.TemporaryDirectory(prefix="hostd-bench-") as name:
         res = asyncio.run(bench(Path(name), args.in_process, args.profile, args.partial_lines,
-                                 args.read_hold, args.rx_buffer, args.advanced_ok))
+                                 args.read_hold, args.rx_buffer, args.advanced_ok,
+                                 args.upload))
     res["floor_us_per_wakeup"] = 1e6 * wakeup.measure(3000, 0.00168, write=True)[0]
     mode = "in-process sim:// (CPU includes the emulator)" if args.in_process else \
         "emulator in its own process on a pty"
