@@ -10,7 +10,7 @@ from __future__ import annotations
 import functools
 import re
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from typing import Any
 
 AXES = ("X", "Y", "Z", "A", "C")
@@ -167,7 +167,9 @@ class ModalState:
         self.fan = 0
 
     def snapshot(self) -> dict[str, Any]:
-        return asdict(self)
+        """Every field, the position copied (``dataclasses.asdict``'s result, without its
+        recursion: the job's progress is written with it several times a second)."""
+        return {**vars(self), "position": dict(self.position)}
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> ModalState:

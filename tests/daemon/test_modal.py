@@ -3,6 +3,8 @@ for bit, whatever the batches and the commands."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import hypothesis.strategies as st
 import pytest
 from hypothesis import given, settings
@@ -75,3 +77,17 @@ def test_a_long_file_is_joined_in_parts_with_the_same_state(monkeypatch) -> None
     state = ModalState()
     state.apply_many(commands)
     assert repr(state.snapshot()) == repr(_per_line(commands, ModalState()).snapshot())
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(_COMMAND, max_size=40))
+def test_the_snapshot_is_a_plain_copy_of_every_field(commands: list[str]) -> None:
+    """The snapshot the job's progress is written with is ``dataclasses.asdict``'s result,
+    owns its position (a later move leaves it as it was) and rebuilds the same state."""
+    state = _per_line(commands, ModalState())
+    snap = state.snapshot()
+    assert snap == dataclasses.asdict(state)
+    assert ModalState.from_dict(snap) == state
+    before = dict(snap["position"])
+    state.apply("G1 X123.5 Y-4 Z7 A9 C11 E3")
+    assert snap["position"] == before
