@@ -160,6 +160,14 @@ class Streamer:
     # -- the run ---------------------------------------------------------------------------
 
     async def run(self) -> str:
+        """Stream the program; ``completed`` or ``cancelled``, or the link's error."""
+        try:
+            return await self._run()
+        finally:  # stopped by a link error or cancelled: the batches still out are let go
+            for batch in self._inflight:
+                batch.acked.add_done_callback(_let_go)
+
+    async def _run(self) -> str:
         self.state = "streaming"
         for cmd in self.prelude:
             await self._extra(cmd)
@@ -363,6 +371,13 @@ class Streamer:
                 "transitions": self.stats.transitions,
                 "transition_failures": self.stats.transition_failures,
                 "pause_reason": self.pause_reason}
+
+
+def _let_go(fut: asyncio.Future[Any]) -> None:
+    """Take the outcome of a batch no one waits for any more: the link's error that ended the
+    run (or a later close) is reported once, not again as a never-retrieved exception."""
+    if not fut.cancelled():
+        fut.exception()
 
 
 async def _settled(fut: asyncio.Future[Any]) -> None:

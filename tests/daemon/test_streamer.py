@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import asyncio
+import gc
 from collections import deque
 
 import pytest
@@ -358,3 +359,65 @@ async def test_a_pause_asked_inside_a_transition_waits_for_the_whole_block():
         st.request_resume()
         assert await task == "completed"
     assert file_commands(port.log, st.stats.extra_commands) == prog.commands
+
+
+class BatchPort(FakePort):
+    """As the serial link does: one future a batch, for its last line. The first ``good``
+    lines are acknowledged; then nothing is, until :meth:`close` fails what is out."""
+
+    def __init__(self, good: int) -> None:
+        super().__init__()
+        self.good = good
+        self.futs: list[asyncio.Future[None]] = []
+
+    def submit_many(self, commands: list[str]) -> tuple[int, asyncio.Future[None]]:
+        first = len(self.log) + 1
+        self.log.extend(commands)
+        fut = asyncio.get_running_loop().create_future()
+        if len(self.log) <= self.good:
+            fut.set_result(None)
+        else:
+            self.futs.append(fut)
+        return first, fut
+
+    def close(self) -> None:
+        for fut in self.futs:
+            fut.set_exception(LinkLost("port lost: closed", self.good))
+
+
+def never_retrieved(contexts: list[dict]) -> list[str]:
+    return [c["message"] for c in contexts if "never retrieved" in c.get("message", "")]
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("ending", ["link lost", "cancelled, then closed"])
+async def test_batches_left_out_are_let_go_without_a_never_retrieved_error(ending: str):
+    """A run ended by the link's error, or cancelled at shutdown with the link closed after
+    it, leaves no batch future whose exception asyncio would log as never retrieved."""
+    loop = asyncio.get_running_loop()
+    contexts: list[dict] = []
+    loop.set_exception_handler(lambda _loop, context: contexts.append(context))
+    try:
+        prog = parse_program(LAYERED)
+        port = BatchPort(good=8)
+        st = Streamer(port, prog, StreamSettings(lookahead=8))
+        async with asyncio.timeout(5):
+            task = asyncio.create_task(st.run())
+            while len(port.log) < 16:  # two batches acknowledged, two out, then it waits
+                await asyncio.sleep(0)
+            if ending == "link lost":
+                port.close()
+                with pytest.raises(LinkLost):
+                    await task
+            else:
+                task.cancel()
+                with pytest.raises(asyncio.CancelledError):
+                    await task
+                port.close()
+            await asyncio.sleep(0)  # the callbacks of the futures just failed run
+        assert len(st._inflight) >= 1  # batches were still out when the run ended
+        del port, st, task
+        gc.collect()
+    finally:
+        loop.set_exception_handler(None)
+    assert never_retrieved(contexts) == []
