@@ -30,6 +30,7 @@ FIGURES = {"watch_cpu_pct": "watch%", "stream_cpu_pct": "stream%",
            "acked_lines_per_read": "per_read", "watch_wire_share_pct": "wwire%",
            "wire_share_pct": "wire%",
            "floor_us_per_wakeup": "floor_us"}
+OPTIONAL = {"upload_s": "upload_s"}  # printed when both benches give it (``--upload``)
 
 
 def start(checkout: Path, extra: list[str]) -> subprocess.Popen[str]:
@@ -45,7 +46,7 @@ def figures_of(checkout: Path, proc: subprocess.Popen[str]) -> dict[str, float]:
     figures: dict[str, float] = {}
     for line in stdout.splitlines():
         parts = line.split()
-        if len(parts) >= 2 and parts[0] in FIGURES:
+        if len(parts) >= 2 and (parts[0] in FIGURES or parts[0] in OPTIONAL):
             figures[parts[0]] = float(parts[1])
     missing = FIGURES.keys() - figures.keys()
     if missing:
@@ -97,7 +98,8 @@ def together(base: Path, here: Path, rounds: int, extra: list[str]) -> None:
 
 
 def line(tag: str, fig: dict[str, float]) -> str:
-    return f"{tag:>7} " + " ".join(f"{short} {fig[key]:7.2f}" for key, short in FIGURES.items())
+    shown = {**FIGURES, **{k: v for k, v in OPTIONAL.items() if k in fig}}
+    return f"{tag:>7} " + " ".join(f"{short} {fig[key]:7.2f}" for key, short in shown.items())
 
 
 def main() -> None:
@@ -127,7 +129,8 @@ def main() -> None:
     for stat in (statistics.mean, statistics.median):
         for tag, figs in runs.items():
             print(line(f"{stat.__name__[:4]} {tag}",
-                       {key: stat(f[key] for f in figs) for key in FIGURES}))
+                       {key: stat(f[key] for f in figs) for key in {**FIGURES, **OPTIONAL}
+                        if all(key in f for f in figs)}))
 
 
 if __name__ == "__main__":

@@ -24,8 +24,9 @@ reads each at once). The firmware's receive buffer sets how many a read can take
 ``--advanced-ok`` has the emulator answer ``ok N<n> P<p> B<b>``, as a Marlin built with
 ADVANCED_OK does (the README's recommended build; stock Marlin answers a plain ``ok``).
 ``--upload LINES`` has another client submit a G-code job of about that many lines as the
-first phase begins (an operator queueing the next part): ``upload_s`` is its round trip, and
-``watch_wire_share_pct`` shows whether the stream kept the wire full meanwhile.
+first phase begins: an operator's ``hostctl print`` queueing the next part (``upload_s``: its
+run, the CLI's start included), and ``watch_wire_share_pct`` shows whether the stream kept
+the wire full meanwhile.
 
 Last, ``floor_us_per_wakeup`` is :mod:`wakeup`'s bare asyncio wake-up and write per ``ok``
 (no hostd code) on this machine right after: a shared VM's speed drifts, and this tells a
@@ -186,14 +187,19 @@ async def stream_and_measure(c: Client, sock: Path, pids: dict[str, int],
 
 
 async def submit_when(started: asyncio.Event, sock: Path, lines: int) -> float:
-    """Once ``started`` is set, submit a job of about ``lines`` lines from a client of its
-    own; the seconds its submission took."""
+    """Once ``started`` is set, ``hostctl print`` a job of about ``lines`` lines (the checkout's
+    own hostctl, in a process of its own); the seconds it took."""
     text = synthetic_gcode(subparts=1, layers=max(1, lines // 200), per_layer=200)
-    uploader = Client(*await asyncio.open_unix_connection(str(sock), limit=1 << 20))
+    path = sock.parent / "next.gcode"
+    path.write_text(text)
     await started.wait()
     t0 = time.monotonic()
-    await uploader.call("job.submit", name="next.gcode", data=text, encoding="text")
-    uploader.w.close()
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "hostd.cli.main", "--socket", str(sock), "print", str(path),
+        cwd=str(ROOT), stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
+    _, err = await proc.communicate()
+    if proc.returncode:
+        raise SystemExit(f"hostctl print failed: {err.decode().strip()}")
     return time.monotonic() - t0
 
 

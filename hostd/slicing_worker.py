@@ -1,6 +1,6 @@
 """Slicing in a separate process, so the event loop and the serial stream never stall.
 
-One worker process (a :class:`~concurrent.futures.ProcessPoolExecutor`, spawned, so it shares
+One worker process (:class:`hostd.worker_process.WorkerProcess`: spawned, so it shares
 nothing with the daemon's threads) imports the slicer; the daemon itself never imports numpy
 or trimesh. Results are cached on disk by ``sha256(STL) + sha256(profile)``.
 """
@@ -11,17 +11,15 @@ import asyncio
 import hashlib
 import json
 import logging
-import multiprocessing
 import os
 import time
 from collections.abc import Mapping
-from concurrent.futures import ProcessPoolExecutor
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from hostd.stats import SLICE_BOUNDS, Buckets
+from hostd.worker_process import WorkerDied, WorkerProcess
 
 log = logging.getLogger(__name__)
 
@@ -100,18 +98,12 @@ class SlicingWorker:
         self.cache_dir.mkdir(parents=True, exist_ok=True)
         self.values = dict(values)
         self.profile = profile_of(self.values)
-        self._pool: ProcessPoolExecutor | None = None
+        self.process = WorkerProcess()
         self.durations = Buckets(SLICE_BOUNDS)
         self.last_duration_s: float | None = None
         self.cache_hits = 0
         self.failures = 0
         self.active = 0
-
-    def _executor(self) -> ProcessPoolExecutor:
-        if self._pool is None:
-            ctx = multiprocessing.get_context("spawn")
-            self._pool = ProcessPoolExecutor(max_workers=1, mp_context=ctx)
-        return self._pool
 
     async def slice(self, stl_path: Path, stl_sha: str) -> SliceOutcome:
         key = cache_key(stl_sha, self.profile)
@@ -123,12 +115,9 @@ class SlicingWorker:
             return SliceOutcome(out, True, 0.0, info)
         started = time.monotonic()
         self.active += 1
-        loop = asyncio.get_running_loop()
         try:
-            info = await loop.run_in_executor(self._executor(), slice_in_worker,
-                                              str(stl_path), self.values, str(out))
-        except BrokenProcessPool:
-            self._pool = None
+            info = await self.process.run(slice_in_worker, str(stl_path), self.values, str(out))
+        except WorkerDied:
             self.failures += 1
             raise SliceError("the slicing worker died (out of memory?)") from None
         except SliceError:
@@ -143,11 +132,9 @@ class SlicingWorker:
         return SliceOutcome(out, False, duration, info)
 
     def close(self) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = None
+        self.process.close()
 
     def status(self) -> dict[str, Any]:
         return {"active": self.active, "durations": self.durations.snapshot(),
                 "last_duration_s": self.last_duration_s, "cache_hits": self.cache_hits,
-                "failures": self.failures, "worker_started": self._pool is not None}
+                "failures": self.failures, "worker_started": self.process.started}

@@ -18,6 +18,8 @@ from hostd.cli.client import Client, socket_path
 from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, CliError
 
 FINAL = {"completed", "failed", "cancelled", "interrupted"}
+PART_BYTES = 3 << 16
+"""Bytes of a file a message carries when it is sent in parts (256 KiB of base64)."""
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -81,7 +83,7 @@ def cmd_print(args: argparse.Namespace) -> int:
         if args.wait:
             c.call("events.subscribe", events=["job.state", "job.progress", "job.subpart",
                                                "subpart_started", "transition_failed"])
-        job = c.call("job.submit", name=path.name, data=base64.b64encode(data).decode())
+        job = _submit(c, path.name, data)
         if not args.wait:
             if args.json:
                 _emit_json(job)
@@ -90,6 +92,18 @@ def cmd_print(args: argparse.Namespace) -> int:
             return EXIT_OK
         final = _follow(c, job, args.json)
     return EXIT_OK if final == "completed" else EXIT_FAILED
+
+
+def _submit(c: Client, name: str, data: bytes) -> dict[str, Any]:
+    """Queue the file: in one ``job.submit``, or when it is larger than :data:`PART_BYTES` in
+    parts (``job.upload``), so that no message holds the daemon's event loop long."""
+    if len(data) <= PART_BYTES:
+        return c.call("job.submit", name=name, data=base64.b64encode(data).decode())
+    view = memoryview(data)
+    for offset in range(0, len(data), PART_BYTES):
+        part = base64.b64encode(view[offset:offset + PART_BYTES]).decode()
+        c.call("job.upload", data=part, offset=offset)
+    return c.call("job.submit", name=name)
 
 
 def _follow(c: Client, job: dict[str, Any], as_json: bool) -> str:

@@ -7,13 +7,21 @@ manager or the printer, and return plain JSON. Errors are exceptions, mapped to 
 
 from __future__ import annotations
 
-import base64
-import binascii
+import asyncio
 from typing import TYPE_CHECKING, Any
 
 from hostd import __version__
-from hostd.control.rpc import INVALID_PARAMS, Param, PrinterBusy, Registry, RpcError
+from hostd.control.rpc import (
+    INVALID_PARAMS,
+    UPLOAD_REJECTED,
+    Param,
+    PrinterBusy,
+    Registry,
+    RpcError,
+)
 from hostd.control.server import Client
+from hostd.control.upload import PartUploads, write_base64
+from hostd.jobs.spool import Staged
 from hostd.jobs.states import JobState, JobStateError, parse_state
 from hostd.link.framing import strip_gcode
 from hostd.link.replies import Ok, Position, Temperatures
@@ -30,6 +38,7 @@ RAW_MAX_LINES = 100
 def build_registry(d: Daemon) -> Registry:
     """The whole API of the daemon ``d``."""
     reg = Registry()
+    uploads = PartUploads(lambda: d.jobs.spool.stage())
     jid = Param("id", "int", required=False, doc="job id (default: the current job)")
     wait = Param("wait", "bool", required=False, default=True)
 
@@ -61,20 +70,29 @@ def build_registry(d: Daemon) -> Registry:
         await d.emergency_stop()
         return {"stopped": True}
 
-    async def job_submit(ctx: Client, name: str, data: str, kind: str | None,
+    async def job_submit(ctx: Client, name: str, data: str | None, kind: str | None,
                          encoding: str) -> dict[str, Any]:
+        staged = uploads.take(ctx.id) if data is None else await _staged(data, encoding)
+        return d.jobs.job_dict(await d.jobs.submit_staged(name, staged, kind))
+
+    async def _staged(data: str, encoding: str) -> Staged:
         limit = d.config["daemon.max_upload_bytes"]
-        if encoding == "base64":
-            if len(data) > (limit + 2) // 3 * 4 + 4:
-                raise RpcError(-32003, f"upload exceeds the limit of {limit} bytes")
-            try:
-                raw = base64.b64decode(data, validate=True)
-            except (binascii.Error, ValueError):
-                raise RpcError(INVALID_PARAMS, "data: invalid base64") from None
-        else:
-            raw = data.encode("utf-8")
-        job = await d.jobs.submit(name, raw, kind)
-        return d.jobs.job_dict(job)
+        if encoding == "base64" and len(data) > (limit + 2) // 3 * 4 + 4:
+            raise RpcError(UPLOAD_REJECTED, f"upload exceeds the limit of {limit} bytes")
+        staged = d.jobs.spool.stage()
+        try:
+            if encoding == "base64":
+                await write_base64(staged, data)
+            else:
+                await asyncio.to_thread(staged.write, data.encode("utf-8"))
+        except BaseException:
+            staged.discard()
+            raise
+        return staged
+
+    async def job_upload(ctx: Client, data: str, offset: int) -> dict[str, Any]:
+        ctx.on_close["upload"] = lambda: uploads.drop(ctx.id)
+        return {"bytes": await uploads.append(ctx.id, data, offset)}
 
     async def job_list(ctx: Client, states: list[Any] | None, limit: int) -> dict[str, Any]:
         wanted = None if states is None else [parse_state(str(s)) for s in states]
@@ -124,11 +142,15 @@ def build_registry(d: Daemon) -> Registry:
     reg.add("printer.gcode", printer_gcode, Param("script", "str"),
             doc="run raw G-code lines (only a safe set while printing)")
     reg.add("printer.estop", printer_estop, doc="M112 now; the current job fails")
-    reg.add("job.submit", job_submit, Param("name", "str"), Param("data", "str"),
+    reg.add("job.submit", job_submit, Param("name", "str"),
+            Param("data", "str", required=False, doc="the file (else the job.upload parts)"),
             Param("kind", "str", required=False, choices=("stl", "gcode")),
             Param("encoding", "str", required=False, default="base64",
                   choices=("base64", "text")),
             doc="queue an STL or G-code upload (content in the request)")
+    reg.add("job.upload", job_upload, Param("data", "str", doc="a part of the file, base64"),
+            Param("offset", "int", doc="its byte offset in the file (0 starts one)"),
+            doc="send a file in parts, then job.submit without data")
     reg.add("job.list", job_list, Param("states", "list", required=False),
             Param("limit", "int", required=False, default=1000), doc="jobs, oldest first")
     reg.add("job.get", job_get, jid, doc="one job with history and checkpoints")

@@ -15,6 +15,7 @@ import logging
 import os
 import socket
 import stat
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -41,6 +42,7 @@ class Client:
         self.subscribed: frozenset[str] | None = None  # None: not subscribed
         self.all_events = False
         self.dropped = False
+        self.on_close: dict[str, Callable[[], None]] = {}  # run once the connection has ended
 
     def send(self, line: str) -> None:
         if self.dropped:
@@ -177,6 +179,11 @@ class ControlServer:
         finally:
             self.clients.pop(client.id, None)
             client.queue.put_nowait(None)
+            for name, hook in client.on_close.items():
+                try:
+                    hook()
+                except Exception:  # one failing hook must not keep the others from running
+                    log.exception("client %d: closing %s", client.id, name)
             with contextlib.suppress(Exception):
                 await out
             writer.close()

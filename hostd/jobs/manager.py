@@ -18,13 +18,14 @@ from typing import Any
 
 from hostd.control.events import EventBus
 from hostd.control.rpc import PrinterBusy, ShuttingDown
-from hostd.jobs.spool import SUFFIX, Spool, SpoolError, check_gcode, check_stl, upload_kind
+from hostd.jobs.file_check import FileChecker, parse_upload
+from hostd.jobs.spool import SUFFIX, Spool, SpoolError, Staged, upload_kind
 from hostd.jobs.states import TERMINAL, WAITING, JobState, JobStateError
 from hostd.jobs.store import Job, JobStore, StoreError
 from hostd.link.errors import FirmwareReset, LinkError, LinkLost
-from hostd.printer.errors import PrinterError, ProgramError
+from hostd.printer.errors import PrinterError
 from hostd.printer.modal import ModalState
-from hostd.printer.program import Program, Transition, parse_program
+from hostd.printer.program import Program, Transition
 from hostd.printer.streamer import Hooks, Port, Streamer, StreamSettings
 from hostd.slicing_worker import SliceError, SlicingWorker
 
@@ -64,6 +65,7 @@ class JobManager:
         self.store = store
         self.spool = spool
         self.worker = worker
+        self.checker = FileChecker()  # whole-file checks, off the event loop's GIL
         self.port_factory = port_factory
         self.bus = bus
         self.settings = settings
@@ -119,22 +121,35 @@ class JobManager:
                 self._set_state(job.id, JobState.INTERRUPTED,
                                 f"{reason} at line {act.streamer.acked}")
             self._finish_active(act)
+        self.checker.close()
 
     # -- requests (from the control endpoints) -------------------------------------------
 
     async def submit(self, name: str, data: bytes, kind: str | None = None) -> Job:
-        if self._stopping:
-            raise ShuttingDown("the daemon is shutting down")
-        kind = upload_kind(name, kind)
-        self.spool.check_size(len(data))
-        estimate: dict[str, Any] = {}
-        total = 0
-        if kind == "stl":
-            check_stl(data, name)
-        else:
-            program = await asyncio.to_thread(_parse_upload, data, name)
-            estimate, total = program.estimate, program.total
-        sha = await asyncio.to_thread(self.spool.put, data, SUFFIX[kind])
+        """Queue ``data``, an upload named ``name`` (see :meth:`submit_staged`)."""
+        staged = self.spool.stage()
+        try:
+            await asyncio.to_thread(staged.write, data)
+        except BaseException:
+            staged.discard()
+            raise
+        return await self.submit_staged(name, staged, kind)
+
+    async def submit_staged(self, name: str, staged: Staged, kind: str | None = None) -> Job:
+        """Queue an upload written to the spool's staging: checked whole in the worker
+        process, then stored under its digest. Afterwards the staged file is gone: stored, or
+        on any error discarded."""
+        try:
+            if self._stopping:
+                raise ShuttingDown("the daemon is shutting down")
+            kind = upload_kind(name, kind)
+            self.spool.check_size(staged.size)
+            await asyncio.to_thread(staged.finish)  # on disk before the worker reads it
+            summary = await self.checker.check(staged.path, kind, name)
+            sha = await asyncio.to_thread(self.spool.commit, staged, SUFFIX[kind])
+        finally:
+            staged.discard()
+        estimate, total = (summary.estimate, summary.total) if summary else ({}, 0)
         job = self.store.add(Path(name).name[:200] or "upload", kind, sha,
                              gcode_sha=sha if kind == "gcode" else None, estimate=estimate)
         self.counts[job.state.value] += 1
@@ -239,8 +254,8 @@ class JobManager:
                 raise SliceError("no slicing worker")
             stl = self.spool.path(job.upload_sha, ".stl")
             outcome = await self.worker.slice(stl, job.upload_sha)
+            summary = await self.checker.summarize(outcome.gcode_path, job.name)
             data = await asyncio.to_thread(outcome.gcode_path.read_bytes)
-            program = await asyncio.to_thread(_parse_upload, data, job.name)
             sha = await asyncio.to_thread(self.spool.put, data, ".gcode")
         except (SliceError, SpoolError, PrinterError) as exc:
             if self.store.get(job.id).state is JobState.SLICING:
@@ -249,10 +264,10 @@ class JobManager:
         if self.store.get(job.id).state is not JobState.SLICING:
             return  # cancelled meanwhile
         info = {**outcome.info, "slice_s": round(outcome.duration_s, 3),
-                "cache_hit": outcome.cache_hit, "subparts": len(program.subparts),
-                "layers": len(program.layers), "transitions": len(program.transitions)}
-        self.store.update(job.id, gcode_sha=sha, total_lines=program.total,
-                          estimate=program.estimate, info=info)
+                "cache_hit": outcome.cache_hit, "subparts": summary.subparts,
+                "layers": summary.layers, "transitions": summary.transitions}
+        self.store.update(job.id, gcode_sha=sha, total_lines=summary.total,
+                          estimate=summary.estimate, info=info)
         self._set_state(job.id, JobState.READY, "sliced")
         self._wake_print.set()
 
@@ -307,7 +322,7 @@ class JobManager:
         if job.gcode_sha is None:
             raise PrinterError(f"job {job.id} has no G-code")
         data = await asyncio.to_thread(self.spool.read, job.gcode_sha, ".gcode")
-        return await asyncio.to_thread(_parse_upload, data, job.name)
+        return await asyncio.to_thread(parse_upload, data, job.name)
 
     async def _run(self, job: Job, start: int, modal: ModalState | None, prelude: list[str],
                    program: Program | None = None, note: str = "") -> None:
@@ -500,7 +515,8 @@ class JobManager:
                 "counts": dict(self.counts), "finished": dict(self.finished),
                 "transitions": dict(self.transitions), "current": current,
                 "latest": None if latest is None else dict(latest),
-                "recovered": list(self.recovered), "db_checkpoints": self.checkpoints}
+                "recovered": list(self.recovered), "db_checkpoints": self.checkpoints,
+                "file_checks": self.checker.status()}
 
 
 def eta(estimate_s: float | None, ratio: float, elapsed: float, start_ratio: float
@@ -517,13 +533,3 @@ def eta(estimate_s: float | None, ratio: float, elapsed: float, start_ratio: flo
     factor = elapsed / (estimate_s * done)
     return remaining * factor
 
-
-def _parse_upload(data: bytes, name: str) -> Program:
-    text = check_gcode(data, name)
-    try:
-        program = parse_program(text)
-    except ProgramError as exc:
-        raise SpoolError(f"{name}: {exc}") from None
-    if program.total == 0:
-        raise SpoolError(f"{name}: G-code has no commands")
-    return program

@@ -8,13 +8,58 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import tempfile
 from pathlib import Path
+from typing import BinaryIO
 
 _SHA = re.compile(r"^[0-9a-f]{64}$")
 
 
 class SpoolError(Exception):
     """An upload that cannot be stored (too large, empty) or a digest that is not stored."""
+
+
+class Staged:
+    """An upload on its way into the spool: a temporary file there, hashed as it is written.
+
+    Its methods block (call them on a thread), and one writer at a time. :meth:`Spool.commit`
+    moves it to its place; :meth:`discard` (a no-op once committed) deletes it.
+    """
+
+    def __init__(self, path: Path, fh: BinaryIO, max_bytes: int) -> None:
+        self.path = path
+        self.size = 0
+        self.committed = False
+        self._fh: BinaryIO | None = fh
+        self._sha = hashlib.sha256()
+        self._max = max_bytes
+
+    def write(self, data: bytes) -> None:
+        """Append ``data``; :class:`SpoolError` past the spool's size limit."""
+        if self._fh is None:
+            raise SpoolError("the upload is already finished")
+        if self.size + len(data) > self._max:
+            raise SpoolError(f"upload of {self.size + len(data)} bytes exceeds the limit of "
+                             f"{self._max} bytes")
+        self._fh.write(data)
+        self._sha.update(data)
+        self.size += len(data)
+
+    def finish(self) -> str:
+        """Flush the file to disk and close it; the sha256 hex digest of what was written."""
+        if self._fh is not None:
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+            self._fh.close()
+            self._fh = None
+        return self._sha.hexdigest()
+
+    def discard(self) -> None:
+        if self._fh is not None:
+            self._fh.close()
+            self._fh = None
+        if not self.committed:
+            self.path.unlink(missing_ok=True)
 
 
 class Spool:
@@ -32,6 +77,8 @@ class Spool:
         self.root = Path(root)
         self.max_bytes = int(max_bytes)
         self.root.mkdir(parents=True, exist_ok=True)
+        for stale in self.root.glob(".*.tmp"):  # uploads a stopped daemon left half-written
+            stale.unlink(missing_ok=True)
 
     def check_size(self, size: int) -> None:
         """Raise :class:`SpoolError` for an empty or oversized upload."""
@@ -40,19 +87,32 @@ class Spool:
         if size > self.max_bytes:
             raise SpoolError(f"upload of {size} bytes exceeds the limit of {self.max_bytes} bytes")
 
+    def stage(self) -> Staged:
+        """A new upload, to :meth:`Staged.write` and then :meth:`commit` or discard."""
+        fd, name = tempfile.mkstemp(prefix=".upload-", suffix=".tmp", dir=self.root)
+        return Staged(Path(name), os.fdopen(fd, "wb"), self.max_bytes)
+
+    def commit(self, staged: Staged, suffix: str) -> str:
+        """Store a staged upload under its digest (once; blocking) and return the digest."""
+        self.check_size(staged.size)
+        digest = staged.finish()
+        path = self.path(digest, suffix, must_exist=False)
+        if path.exists():
+            staged.path.unlink(missing_ok=True)
+        else:
+            os.replace(staged.path, path)
+        staged.committed = True
+        return digest
+
     def put(self, data: bytes, suffix: str) -> str:
         """Store ``data`` (atomically, once) and return its sha256 hex digest."""
         self.check_size(len(data))
-        digest = hashlib.sha256(data).hexdigest()
-        path = self.path(digest, suffix, must_exist=False)
-        if not path.exists():
-            tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-            with open(tmp, "wb") as fh:
-                fh.write(data)
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        return digest
+        staged = self.stage()
+        try:
+            staged.write(data)
+            return self.commit(staged, suffix)
+        finally:
+            staged.discard()
 
     def path(self, digest: str, suffix: str, must_exist: bool = True) -> Path:
         """The file of ``digest``; only well-formed digests map to a path."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import json
 import sys
 from pathlib import Path
@@ -11,6 +12,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "daemon"))
 from hostd_harness import DaemonProc, make_gcode
+
+from hostd.cli.cmd_control import PART_BYTES
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -55,5 +58,35 @@ async def test_hostctl_verbs_and_exit_codes(tmp_path):
             assert rc == 4 and "empty upload" in err
             rc, out, _ = await hostctl(d.socket, "print", str(gcode), "--json")
             assert rc == 0 and json.loads(out)["id"] == 2
+        finally:
+            await d.stop()
+
+
+@pytest.mark.asyncio
+async def test_hostctl_sends_a_large_file_in_parts(tmp_path):
+    """A file over one part goes as job.upload parts then job.submit: the same job as the
+    file, in one request per part; over the daemon's limit, refused with the limit named."""
+    d = DaemonProc(tmp_path, daemon__max_upload_bytes=4 * PART_BYTES)
+    big = tmp_path / "big.gcode"
+    big.write_text(make_gcode(subparts=2, layers=10, per_layer=600))
+    data = big.read_bytes()
+    parts = -(-len(data) // PART_BYTES)
+    assert 1 < parts <= 4
+    too_big = tmp_path / "huge.gcode"
+    too_big.write_bytes(b"G1 X1\n" * (4 * PART_BYTES // 6 + 1))
+    async with asyncio.timeout(90):
+        await d.start()
+        try:
+            rc, out, _ = await hostctl(d.socket, "status", "--json")
+            before = json.loads(out)["control"]["requests_total"]
+            rc, out, err = await hostctl(d.socket, "print", str(big), "--json")
+            assert rc == 0, err
+            job = json.loads(out)
+            assert job["upload_sha"] == hashlib.sha256(data).hexdigest()
+            rc, out, _ = await hostctl(d.socket, "status", "--json")
+            # the parts, the submission, and this status call
+            assert json.loads(out)["control"]["requests_total"] - before == parts + 2
+            rc, _, err = await hostctl(d.socket, "print", str(too_big))
+            assert rc == 4 and f"exceeds the limit of {4 * PART_BYTES} bytes" in err
         finally:
             await d.stop()

@@ -145,6 +145,36 @@ async def test_server_oversize_abrupt_disconnect_and_push(tmp_path):
 
 
 @pytest.mark.asyncio
+async def test_close_hooks_run_when_a_connection_ends(tmp_path):
+    """Each hook a handler registered runs once the client is gone, even after one fails."""
+    reg = Registry()
+    ran: list[int] = []
+    done = asyncio.Event()
+
+    async def hold(ctx) -> int:
+        def fail() -> None:
+            raise RuntimeError("hook failed")
+
+        ctx.on_close["first"] = fail
+        ctx.on_close["second"] = lambda: (ran.append(ctx.id), done.set())
+        return ctx.id
+
+    reg.add("hold", hold)
+    server = ControlServer(tmp_path / "s.sock", reg, EventBus(), max_message=4096)
+    async with asyncio.timeout(10):
+        await server.start()
+        r, w = await asyncio.open_unix_connection(str(tmp_path / "s.sock"))
+        w.write(b'{"jsonrpc": "2.0", "id": 1, "method": "hold"}\n')
+        await w.drain()
+        cid = json.loads(await r.readline())["result"]
+        assert ran == []
+        w.close()
+        await done.wait()
+        await server.close()
+    assert ran == [cid]
+
+
+@pytest.mark.asyncio
 async def test_second_server_on_a_live_socket_is_refused(tmp_path):
     path = tmp_path / "s.sock"
     bus = EventBus()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import base64
+import hashlib
 import os
 import signal
 import stat
@@ -133,6 +134,61 @@ async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
         await c.until_state(job["id"], "completed")
         jobs = (await c.call("job.list"))["jobs"]
         assert [j["id"] for j in jobs] == [job["id"]]
+        await c.close()
+    await d.stop()
+
+
+async def test_a_file_sent_in_parts_is_the_job_sent_whole(daemon_factory):
+    d = daemon_factory(daemon__max_upload_bytes=200_000)
+    await d.start()
+    text = make_gcode(subparts=2, layers=3, per_layer=80)
+    data = text.encode()
+    parts = [data[i:i + 1000] for i in range(0, len(data), 1000)]
+    b64 = [base64.b64encode(part).decode() for part in parts]
+    staging = d.tmp / "state" / "spool"
+    async with asyncio.timeout(60):
+        c = await d.rpc()
+        await c.call("events.subscribe", events=["job.state"])
+        offset = 0
+        for part, encoded in zip(parts, b64, strict=True):
+            assert (await c.call("job.upload", data=encoded, offset=offset)) == {
+                "bytes": offset + len(part)}
+            offset += len(part)
+        job = await c.call("job.submit", name="parts.gcode")
+        assert job["upload_sha"] == hashlib.sha256(data).hexdigest()
+        assert job["total_lines"] == len(file_commands(text))
+        await c.until_state(job["id"], "completed")
+        ran = [x for x in executed((await c.call("sim.log"))["commands"])
+               if x not in ("M400", "M114")]
+        assert ran == file_commands(text)
+        # a part out of place, over the limit or not base64 drops the upload, with an error
+        refusals = [
+            ([(b64[0], 0), (b64[1], 999)], -32602, "offset 999: 1000 bytes received"),
+            ([(b64[1], 1000)], -32602, "offset 1000: no upload in progress"),
+            ([(b64[0], 0), (base64.b64encode(b"G1 X1\n" * 40_000).decode(), 1000)],
+             -32003, "exceeds the limit of 200000 bytes"),
+            ([(b64[0], 0), ("QQ==QQ==", 1000)], -32602, "invalid base64"),
+        ]
+        for sent, code, message in refusals:
+            *good, (last, at) = sent
+            for encoded, offset in good:
+                await c.call("job.upload", data=encoded, offset=offset)
+            with pytest.raises(RpcCallError) as err:
+                await c.call("job.upload", data=last, offset=at)
+            assert err.value.code == code and message in err.value.message, message
+            with pytest.raises(RpcCallError) as err:
+                await c.call("job.submit", name="parts.gcode")
+            assert err.value.code == -32602 and "no upload in parts" in err.value.message
+        assert not list(staging.glob(".*.tmp"))  # nothing staged is left behind
+        assert [j["id"] for j in (await c.call("job.list"))["jobs"]] == [job["id"]]
+        # a client that leaves before it submits leaves nothing either
+        gone = await d.rpc()
+        await gone.call("job.upload", data=b64[0], offset=0)
+        assert len(list(staging.glob(".*.tmp"))) == 1
+        await gone.close()
+        while (await c.call("printer.status"))["control"]["clients"] > 1:
+            pass  # (its connection's end is noticed by the daemon's read loop, not here)
+        assert not list(staging.glob(".*.tmp"))
         await c.close()
     await d.stop()
 

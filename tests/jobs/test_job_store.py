@@ -5,7 +5,7 @@ import sqlite3
 import threading
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from hostd.jobs import JobNotFound, JobState, JobStateError, JobStore, Spool, SpoolError
@@ -146,6 +146,45 @@ def test_spool_content_addressed(tmp_path):
     sp.remove(digest, ".gcode")
     with pytest.raises(SpoolError, match="missing"):
         sp.read(digest, ".gcode")
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.binary(max_size=300), max_size=8), st.booleans())
+def test_a_staged_upload_is_stored_whole_or_not_at_all(tmp_path_factory, parts, keep):
+    """Written in parts and committed, it is what one put stores; discarded, or refused when
+    empty, it leaves nothing; the temporary file is gone either way."""
+    sp = Spool(tmp_path_factory.mktemp("spool"), max_bytes=1200)
+    data = b"".join(parts)
+    staged = sp.stage()
+    try:
+        for part in parts:
+            staged.write(part)
+    except SpoolError as exc:
+        assert len(data) > 1200 and "exceeds the limit of 1200 bytes" in str(exc)
+    else:
+        assert staged.size == len(data)
+        if keep and data:
+            digest = sp.commit(staged, ".gcode")
+            assert digest == hashlib.sha256(data).hexdigest()
+            assert sp.read(digest, ".gcode") == data
+        elif keep:
+            with pytest.raises(SpoolError, match="empty"):
+                sp.commit(staged, ".gcode")
+    staged.discard()
+    assert not staged.path.exists()
+    stored = 1 if keep and data and len(data) <= 1200 else 0
+    assert sp.usage()["files"] == stored
+    assert sorted(p.name for p in sp.root.iterdir() if p.name.startswith(".")) == []
+
+
+def test_a_restart_clears_what_a_killed_daemon_left_staged(tmp_path):
+    sp = Spool(tmp_path / "spool", max_bytes=2048)
+    staged = sp.stage()
+    staged.write(b"G1 X1\n")  # the daemon is killed here
+    digest = sp.put(b"G28\n", ".gcode")
+    sp = Spool(tmp_path / "spool", max_bytes=2048)
+    assert not staged.path.exists()
+    assert sp.read(digest, ".gcode") == b"G28\n"
 
 
 def _progress(store: JobStore, job_id: int, count: int, start: int = 0) -> None:

@@ -1,0 +1,106 @@
+"""File checks run in a worker process: the same summary as a parse here, the same refusals,
+and a worker that dies is replaced."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import signal
+import struct
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "daemon"))
+from hostd_harness import make_gcode
+
+from hostd.jobs import file_check
+from hostd.jobs.file_check import FileChecker, GcodeSummary, parse_upload
+from hostd.jobs.spool import SpoolError
+
+
+def local_summary(data: bytes, name: str) -> GcodeSummary:
+    program = parse_upload(data, name)
+    return GcodeSummary(program.total, program.estimate, len(program.subparts),
+                        len(program.layers), len(program.transitions))
+
+
+def written(tmp_path: Path, name: str, data: bytes) -> Path:
+    path = tmp_path / name
+    path.write_bytes(data)
+    return path
+
+
+def binary_stl(triangles: int, extra: bytes = b"") -> bytes:
+    return b"\0" * 80 + struct.pack("<I", triangles) + b"\0" * 50 * triangles + extra
+
+
+@pytest.mark.asyncio
+@pytest.mark.timeout(120)
+async def test_the_worker_summarizes_as_a_parse_here_would(tmp_path: Path,
+                                                           monkeypatch: pytest.MonkeyPatch):
+    files = [make_gcode(s, layers, per_layer).encode()
+             for s, layers, per_layer in ((1, 1, 1), (3, 4, 25), (4, 2, 7))]
+    expected = [local_summary(data, "part.gcode") for data in files]
+
+    def not_here(data: bytes, name: str) -> None:
+        raise AssertionError("parsed in the daemon's process")
+
+    monkeypatch.setattr(file_check, "parse_upload", not_here)  # the spawned worker has its own
+    checker = FileChecker()
+    try:
+        got = [await checker.summarize(written(tmp_path, f"{i}.gcode", data), "part.gcode")
+               for i, data in enumerate(files)]
+        stl = await checker.check(written(tmp_path, "a.stl", binary_stl(3)), "stl", "a.stl")
+        assert checker.status() == {"checks": 4, "refused": 0, "worker_started": True}
+    finally:
+        checker.close()
+    assert got == expected
+    assert [g.subparts for g in got] == [1, 3, 4] and got[1].transitions == 2
+    assert stl is None
+
+
+@pytest.mark.asyncio
+@pytest.mark.timeout(120)
+@pytest.mark.parametrize(("kind", "data", "message"), [
+    ("gcode", b"\xff\xfe\x00binary", "not UTF-8"),
+    ("gcode", b"G1 X1\n\0G1 X2\n", "NUL"),
+    ("gcode", b"; only a comment\n\n", "no commands"),
+    ("stl", binary_stl(2, b"\0" * 7), "corrupt binary STL"),
+    ("stl", b"solid x\nfacet normal 0 0 1\n", "truncated"),
+])
+async def test_a_bad_file_is_refused_naming_it(tmp_path: Path, kind: str, data: bytes,
+                                               message: str):
+    checker = FileChecker()
+    try:
+        with pytest.raises(SpoolError, match=f"bad.{kind}: .*{message}"):
+            await checker.check(written(tmp_path, "f", data), kind, f"bad.{kind}")
+        ok = await checker.summarize(written(tmp_path, "g", b"G28\nG1 X1 Y1\n"), "good.gcode")
+    finally:
+        checker.close()
+    assert ok.total == 2  # the worker carries on
+    assert checker.status()["refused"] == 1
+
+
+@pytest.mark.asyncio
+@pytest.mark.timeout(120)
+async def test_a_worker_that_dies_fails_its_check_and_is_replaced(tmp_path: Path):
+    checker = FileChecker()
+    try:
+        await checker.summarize(written(tmp_path, "w", b"G28\n"), "warm.gcode")  # it is up
+        pool = checker.process._pool
+        assert pool is not None
+        pids = list(pool._processes)  # (the executor's own record of its workers)
+        big = written(tmp_path, "big", make_gcode(3, 40, 2000).encode())
+        check = asyncio.create_task(checker.summarize(big, "big.gcode"))
+        await asyncio.sleep(0)  # the call is on its way to the worker
+        for pid in pids:
+            os.kill(pid, signal.SIGKILL)
+        with pytest.raises(SpoolError, match=r"big\.gcode: not checked: the worker process died"):
+            await check
+        again = await checker.summarize(written(tmp_path, "n", b"G28\nG1 X1\n"), "next.gcode")
+    finally:
+        checker.close()
+    assert again.total == 2
+    assert checker.status()["refused"] == 1
