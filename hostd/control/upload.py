@@ -2,15 +2,16 @@
 
 A large upload must never hold the event loop long.
 
-Decoding runs at about 200 MB/s of text on a slow core: a 17 MB request in one call would keep
-the serial stream of the job printing meanwhile waiting for some 85 ms. In slices of
+Decoding 17 MB of base64 in one call took 46–111 ms on the project's test VM
+(``bench/upload_lag.py --costs``): that long, the serial stream of the job printing meanwhile
+would wait. In slices of
 :data:`SLICE_CHARS` characters, with the loop's other callbacks run between them, no wait is
 much over a millisecond. The bytes, and every refusal, are those of one strict decode
 (RFC 4648: the base64 alphabet only, no padding before the end). The pieces are written to
 the spool's staging file on a thread, as they are decoded.
 
 One JSON message holding a whole file still costs one ``json.loads`` of all of it on the loop
-(some 46 ms for 17 MB on a slow core). So a client may send a file in parts instead
+(17–23 ms for 17 MB on the same VM). So a client may send a file in parts instead
 (``job.upload``, each part a message of its own), then ``job.submit`` without ``data``:
 :class:`PartUploads` keeps one such upload per connection.
 """
