@@ -80,6 +80,11 @@ SPECS: tuple[Spec, ...] = (
          "jobs.finished", label="outcome"),
     Spec("hostd_slicing_duration_seconds", "histogram", "Wall time of slicing jobs.",
          "slicer.durations"),
+    Spec("hostd_file_checks_total", "counter", "Files checked whole before their job is "
+         "queued (uploads, and the slicer's G-code), in a worker process.",
+         "jobs.file_checks.checks"),
+    Spec("hostd_file_checks_refused_total", "counter", "Files the check refused (not G-code, "
+         "corrupt STL, ...) or could not finish.", "jobs.file_checks.refused"),
     Spec("hostd_transitions_total", "counter", "Rotate/return transitions run as transactions.",
          "jobs.transitions.total"),
     Spec("hostd_transition_failures_total", "counter", "Transitions whose readback mismatched.",

@@ -29,6 +29,7 @@ def full_snapshot() -> dict:
                                   "B": {"actual": 60.1, "target": 60.0, "power": None}}},
         "jobs": {"queue_length": 2, "finished": {"completed": 4, "failed": 1},
                  "transitions": {"total": 3, "failed": 0},
+                 "file_checks": {"checks": 5, "refused": 1, "worker_started": True},
                  "latest": {"info": {"id": "j1", "name": "pipe"}, "state": "printing",
                             "progress": 0.25, "subpart": 1, "subparts_total": 3, "layer": 7,
                             "layers_total": 900, "elapsed_s": 12.0, "remaining_s": 36.0,
