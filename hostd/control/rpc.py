@@ -123,10 +123,22 @@ class Param:
         if not isinstance(value, types):
             raise RpcError(INVALID_PARAMS,
                            f"{self.name}: expected {self.type}, got {type(value).__name__}")
+        if isinstance(value, str) and not value.isascii():
+            _check_text(self.name, value)
         if self.choices is not None and value not in self.choices:
             raise RpcError(INVALID_PARAMS, f"{self.name}: must be one of "
                            f"{', '.join(map(str, self.choices))}")
         return value
+
+
+def _check_text(name: str, value: str) -> None:
+    """Refuse a string UTF-8 cannot carry: a lone surrogate, which JSON's ``\\u`` escapes
+    can smuggle in (it would fail later, writing a file, the database or the serial port)."""
+    try:
+        value.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        raise RpcError(INVALID_PARAMS, f"{name}: not Unicode text (a lone surrogate at "
+                       f"character {exc.start})") from None
 
 
 Handler = Callable[..., Awaitable[Any]]

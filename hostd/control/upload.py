@@ -4,11 +4,10 @@ A large upload must never hold the event loop long.
 
 Decoding 17 MB of base64 in one call took 46–111 ms on the project's test VM
 (``bench/upload_lag.py --costs``): that long, the serial stream of the job printing meanwhile
-would wait. In slices of
-:data:`SLICE_CHARS` characters, with the loop's other callbacks run between them, no wait is
-much over a millisecond. The bytes, and every refusal, are those of one strict decode
-(RFC 4648: the base64 alphabet only, no padding before the end). The pieces are written to
-the spool's staging file on a thread, as they are decoded.
+would wait. In slices of :data:`SLICE_CHARS` characters, with the loop's other callbacks run
+between them, no wait is much over a millisecond. The bytes, and every refusal, are those of
+one strict decode (RFC 4648: the base64 alphabet only, no padding before the end). The
+pieces are written to the spool's staging file on a thread, as they are decoded.
 
 One JSON message holding a whole file still costs one ``json.loads`` of all of it on the loop
 (17–23 ms for 17 MB on the same VM). So a client may send a file in parts instead
@@ -125,6 +124,3 @@ class PartUploads:
         staged = self.open.pop(conn, None)
         if staged is not None:
             staged.discard()
-
-    def status(self) -> dict[str, int]:
-        return {"open": len(self.open), "bytes": sum(s.size for s in self.open.values())}

@@ -5,10 +5,12 @@ The daemon only ever reads files it stored here itself; a client never names a p
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import re
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
 
@@ -17,6 +19,16 @@ _SHA = re.compile(r"^[0-9a-f]{64}$")
 
 class SpoolError(Exception):
     """An upload that cannot be stored (too large, empty) or a digest that is not stored."""
+
+
+@contextlib.contextmanager
+def _storing() -> Iterator[None]:
+    """An operating system's refusal to store (disk full, permissions) as a :class:`SpoolError`
+    for the operator, not an internal error."""
+    try:
+        yield
+    except OSError as exc:
+        raise SpoolError(f"cannot store the upload: {exc.strerror or exc}") from None
 
 
 class Staged:
@@ -41,15 +53,17 @@ class Staged:
         if self.size + len(data) > self._max:
             raise SpoolError(f"upload of {self.size + len(data)} bytes exceeds the limit of "
                              f"{self._max} bytes")
-        self._fh.write(data)
+        with _storing():
+            self._fh.write(data)
         self._sha.update(data)
         self.size += len(data)
 
     def finish(self) -> str:
         """Flush the file to disk and close it; the sha256 hex digest of what was written."""
         if self._fh is not None:
-            self._fh.flush()
-            os.fsync(self._fh.fileno())
+            with _storing():
+                self._fh.flush()
+                os.fsync(self._fh.fileno())
             self._fh.close()
             self._fh = None
         return self._sha.hexdigest()
@@ -89,7 +103,8 @@ class Spool:
 
     def stage(self) -> Staged:
         """A new upload, to :meth:`Staged.write` and then :meth:`commit` or discard."""
-        fd, name = tempfile.mkstemp(prefix=".upload-", suffix=".tmp", dir=self.root)
+        with _storing():
+            fd, name = tempfile.mkstemp(prefix=".upload-", suffix=".tmp", dir=self.root)
         return Staged(Path(name), os.fdopen(fd, "wb"), self.max_bytes)
 
     def commit(self, staged: Staged, suffix: str) -> str:
@@ -97,10 +112,11 @@ class Spool:
         self.check_size(staged.size)
         digest = staged.finish()
         path = self.path(digest, suffix, must_exist=False)
-        if path.exists():
-            staged.path.unlink(missing_ok=True)
-        else:
-            os.replace(staged.path, path)
+        with _storing():
+            if path.exists():
+                staged.path.unlink(missing_ok=True)
+            else:
+                os.replace(staged.path, path)
         staged.committed = True
         return digest
 

@@ -82,6 +82,21 @@ async def test_dispatch_results_and_standard_errors():
         assert [m.get("result") for m in batch] == ["a", None] and len(batch) == 2
 
 
+@pytest.mark.asyncio
+async def test_a_lone_surrogate_in_a_string_param_is_invalid_params():
+    """JSON's \\u escapes can carry a lone surrogate, which no file, database or port can
+    store: the parameter is refused by name, before the handler runs."""
+    reg = make_registry()
+    raw = '{"jsonrpc": "2.0", "id": 1, "method": "echo", "params": {"text": "ab\\ud800"}}'
+    reply = json.loads(await reg.dispatch(raw, None))
+    assert reply["error"]["code"] == -32602
+    assert reply["error"]["message"] == ("text: not Unicode text (a lone surrogate at "
+                                         "character 2)")
+    ok = ('{"jsonrpc": "2.0", "id": 2, "method": "echo", '
+          '"params": {"text": "\\u00e9\\ud83d\\ude00"}}')  # a pair is fine
+    assert json.loads(await reg.dispatch(ok, None))["result"] == "\u00e9\U0001F600"
+
+
 def test_error_table_is_the_one_place():
     assert error_for(JobStateError("cannot"))["code"] == -32002
     assert error_for(EventError("x"))["code"] == -32602

@@ -1,6 +1,8 @@
 from __future__ import annotations
 
+import errno
 import hashlib
+import os
 import sqlite3
 import threading
 
@@ -185,6 +187,27 @@ def test_a_restart_clears_what_a_killed_daemon_left_staged(tmp_path):
     sp = Spool(tmp_path / "spool", max_bytes=2048)
     assert not staged.path.exists()
     assert sp.read(digest, ".gcode") == b"G28\n"
+
+
+class FullDisk:
+    """A file on a disk with no room left."""
+
+    def write(self, data: bytes) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_full_disk_is_a_refusal_naming_it_and_leaves_nothing(tmp_path):
+    sp = Spool(tmp_path / "spool", max_bytes=2048)
+    staged = sp.stage()
+    staged._fh.close()
+    staged._fh = FullDisk()  # type: ignore[assignment]
+    with pytest.raises(SpoolError, match="cannot store the upload: No space left on device"):
+        staged.write(b"G28\n")
+    staged.discard()
+    assert list(sp.root.iterdir()) == []
 
 
 def _progress(store: JobStore, job_id: int, count: int, start: int = 0) -> None:
