@@ -23,7 +23,7 @@ from hostd.control.server import Client
 from hostd.control.upload import PartUploads, write_base64
 from hostd.jobs.spool import Staged
 from hostd.jobs.states import JobState, JobStateError, parse_state
-from hostd.link.framing import strip_gcode
+from hostd.link.framing import CONTROL, strip_gcode
 from hostd.link.replies import Ok, Position, Temperatures
 
 if TYPE_CHECKING:
@@ -53,6 +53,10 @@ def build_registry(d: Daemon) -> Registry:
 
     async def printer_gcode(ctx: Client, script: str) -> dict[str, Any]:
         commands = [c for c in (strip_gcode(line) for line in script.splitlines()) if c]
+        for command in commands:
+            if bad := CONTROL.search(command):
+                raise RpcError(INVALID_PARAMS, f"script: control character "
+                               f"{bad[0]!r} in {command!r}")
         if not commands:
             raise RpcError(INVALID_PARAMS, "script: no G-code commands")
         if len(commands) > RAW_MAX_LINES:

@@ -96,6 +96,9 @@ def error_for(exc: BaseException) -> dict[str, Any]:
 
 # -- the registry ----------------------------------------------------------------------------
 
+INT_LIMIT = 1 << 63
+"""Integer params are 64-bit, as the job database stores them."""
+
 _TYPES: dict[str, tuple[type, ...]] = {
     "int": (int,), "number": (int, float), "str": (str,), "bool": (bool,),
     "list": (list,), "dict": (dict,),
@@ -125,6 +128,8 @@ class Param:
                            f"{self.name}: expected {self.type}, got {type(value).__name__}")
         if isinstance(value, str) and not value.isascii():
             _check_text(self.name, value)
+        if isinstance(value, int) and not -INT_LIMIT <= value < INT_LIMIT:
+            raise RpcError(INVALID_PARAMS, f"{self.name}: {value} is out of range")
         if self.choices is not None and value not in self.choices:
             raise RpcError(INVALID_PARAMS, f"{self.name}: must be one of "
                            f"{', '.join(map(str, self.choices))}")

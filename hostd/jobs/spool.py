@@ -163,7 +163,7 @@ def upload_kind(name: str, kind: str | None) -> str:
         return kind
     ext = Path(name).suffix.lower()
     if ext not in KINDS:
-        raise SpoolError(f"{name}: cannot tell the kind from the extension "
+        raise SpoolError(f"{name or '(no name)'}: cannot tell the kind from the extension "
                          "(.stl or .gcode); pass kind")
     return KINDS[ext]
 

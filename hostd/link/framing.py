@@ -8,6 +8,8 @@ from __future__ import annotations
 import re
 
 _COMMENT = re.compile(r"\([^)]*\)")
+CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
+"""Control characters, which no firmware takes inside a command (tab aside)."""
 
 
 FOLD_BYTES = 128  # longest text folded at once; Marlin's lines are at most 96 bytes

@@ -9,14 +9,20 @@ from __future__ import annotations
 
 import bisect
 import json
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from hostd.link.framing import strip_gcode
+from hostd.link.framing import CONTROL, strip_gcode
 from hostd.printer.errors import ProgramError
 from hostd.printer.modal import ModalState
 
 MARK = ";HOSTD_"
+MESSAGES = frozenset({"M117", "M118", "M23", "M28", "M30", "M32", "M928"})
+"""Commands whose argument is text, not numbers."""
+_SCREEN = bytes.maketrans(b"0123456789." + bytes([*range(0, 9), *range(11, 32), 127]),
+                          b"#" * 11 + b"\0" * 31)
+"""Digits and the point to ``#``, control characters (tab and newline aside) to NUL."""
 
 
 @dataclass(frozen=True)
@@ -114,6 +120,7 @@ def parse_program(text: str) -> Program:
     prog = Program()
     open_tr: dict[str, Any] | None = None
     subpart = 0
+    check = _needs_line_checks(text)
     for lineno, raw in enumerate(text.splitlines(), 1):
         stripped = raw.strip()
         if stripped.startswith(MARK):
@@ -122,6 +129,8 @@ def parse_program(text: str) -> Program:
         cmd = strip_gcode(raw)
         if cmd is None:
             continue
+        if check:
+            _check_command(cmd, lineno)
         prog.commands.append(cmd)
         prog.source_lines.append(lineno)
     if open_tr is not None:
@@ -146,15 +155,16 @@ def _marker(prog: Program, text: str, lineno: int, open_tr: dict[str, Any] | Non
         prog.subparts.setdefault(subpart, index)
         prog.parents[subpart] = data.get("parent")
     elif name == "LAYER":
-        subpart = int(data.get("subpart", subpart))
+        subpart = _int(data, "subpart", lineno) if "subpart" in data else subpart
         prog.layers.append(LayerMark(index, subpart, _int(data, "index", lineno)))
     elif name == "ESTIMATE":
-        prog.estimate = {k: float(v) for k, v in data.items() if isinstance(v, (int, float))}
+        prog.estimate = {k: float(v) for k, v in data.items()
+                         if isinstance(v, int | float) and math.isfinite(v)}
     elif name == "TRANSITION":
         if open_tr is not None:
             raise ProgramError(f"line {lineno}: nested HOSTD_TRANSITION")
-        target = {k.upper(): float(data[k]) for k in ("x", "y", "z", "a", "c", "X", "Y", "Z",
-                                                        "A", "C") if k in data}
+        target = {k.upper(): _number(data, k, lineno) for k in ("x", "y", "z", "a", "c", "X",
+                                                                "Y", "Z", "A", "C") if k in data}
         return {"start": index, "to": _int(data, "to", lineno), "from": data.get("from"),
                 "target": target, "line": lineno}, subpart
     return open_tr, subpart
@@ -171,6 +181,39 @@ def _json(payload: str, lineno: int, name: str) -> dict[str, Any]:
     if not isinstance(data, dict):
         raise ProgramError(f"line {lineno}: HOSTD_{name}: expected a JSON object")
     return data
+
+
+def _number(data: dict[str, Any], key: str, lineno: int) -> float:
+    value = data[key]
+    if not isinstance(value, int | float) or isinstance(value, bool) or not math.isfinite(value):
+        raise ProgramError(f"line {lineno}: marker needs a finite number {key!r}")
+    return float(value)
+
+
+def _needs_line_checks(text: str) -> bool:
+    """Whether anything in ``text`` (comments included) may be what :func:`_check_command`
+    refuses: a control character, ``nan``, ``inf`` or a number's exponent. A screen of the
+    whole file in a few C passes; a file that passes it, as the slicer's do, is spared the
+    closer look at each of its commands (which costs more than its parse)."""
+    screened = text.encode("utf-8").translate(_SCREEN).lower()
+    return any(mark in screened for mark in (b"\0", b"#e", b"nan", b"inf"))
+
+
+def _check_command(cmd: str, lineno: int) -> None:
+    """Refuse a command a firmware would misread: a control character, or an argument such as
+    ``X1e400`` or ``Xnan`` that is no finite number (messages aside: ``M117 info``)."""
+    if bad := CONTROL.search(cmd):
+        raise ProgramError(f"line {lineno}: control character {bad[0]!r} in {cmd!r}")
+    words = cmd.split()
+    if words[0].upper() in MESSAGES:
+        return
+    for word in words[1:]:
+        try:
+            value = float(word[1:])
+        except ValueError:
+            continue  # not a number (a file name, a flag): the firmware's to judge
+        if not math.isfinite(value):
+            raise ProgramError(f"line {lineno}: {word} is not a finite number")
 
 
 def _int(data: dict[str, Any], key: str, lineno: int) -> int:

@@ -97,6 +97,26 @@ async def test_a_lone_surrogate_in_a_string_param_is_invalid_params():
     assert json.loads(await reg.dispatch(ok, None))["result"] == "\u00e9\U0001F600"
 
 
+@pytest.mark.asyncio
+@pytest.mark.parametrize(("value", "ok"), [(2**63 - 1, True), (-(2**63), True),
+                                           (2**63, False), (-(2**63) - 1, False),
+                                           (10**30, False)])
+async def test_integer_params_are_64_bit(value: int, ok: bool):
+    """What the job database can store: a larger id is refused by name, not an overflow."""
+    reg = Registry()
+
+    async def same(ctx, n: int) -> int:
+        return n
+
+    reg.add("same", same, Param("n", "int"))
+    reply = json.loads(await reg.dispatch(json.dumps(
+        {"jsonrpc": "2.0", "id": 1, "method": "same", "params": {"n": value}}), None))
+    if ok:
+        assert reply["result"] == value
+    else:
+        assert reply["error"] == {"code": -32602, "message": f"n: {value} is out of range"}
+
+
 def test_error_table_is_the_one_place():
     assert error_for(JobStateError("cannot"))["code"] == -32002
     assert error_for(EventError("x"))["code"] == -32602

@@ -131,6 +131,14 @@ async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
         with pytest.raises(RpcCallError) as err:
             await c.call("job.submit", name="x.gcode", data="***")
         assert err.value.code == -32602
+        for script, message in (("M117 a\x07b", "control character '\\x07'"),
+                                ("M105\x00", "control character '\\x00'")):
+            with pytest.raises(RpcCallError) as err:  # raw lines: never onto the wire
+                await c.call("printer.gcode", script=script)
+            assert err.value.code == -32602 and message in err.value.message
+        with pytest.raises(RpcCallError) as err:
+            await c.call("job.get", id=10**30)
+        assert err.value.code == -32602 and "out of range" in err.value.message
         await c.until_state(job["id"], "completed")
         jobs = (await c.call("job.list"))["jobs"]
         assert [j["id"] for j in jobs] == [job["id"]]

@@ -1,0 +1,83 @@
+"""A G-code file is refused, line named, for what a firmware would misread or a marker the
+daemon cannot use; what is merely unusual passes."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hostd.link.framing import strip_gcode
+from hostd.printer.errors import ProgramError
+from hostd.printer.program import _check_command, parse_program
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("G28\nG1 X1e400 Y5\n", "line 2: X1e400 is not a finite number"),
+    ("G1 Xnan\n", "line 1: Xnan is not a finite number"),
+    ("G1 X10 E-inf\n", "line 1: E-inf is not a finite number"),
+    ("G1 X1\x1a\n", "line 1: control character '\\x1a'"),
+    ("M117 a\x07\n", "line 1: control character '\\x07'"),
+    (';HOSTD_LAYER {"subpart": "a", "index": 0}\nG1 X1\n',
+     "line 1: marker needs an integer 'subpart'"),
+    (';HOSTD_LAYER {"subpart": [1], "index": 0}\nG1 X1\n',
+     "line 1: marker needs an integer 'subpart'"),
+    (';HOSTD_TRANSITION {"to": 1, "x": NaN}\nG0 X1\n;HOSTD_TRANSITION_END\n',
+     "line 1: marker needs a finite number 'x'"),
+    (';HOSTD_TRANSITION {"to": 1, "a": "30"}\nG0 A30\n;HOSTD_TRANSITION_END\n',
+     "line 1: marker needs a finite number 'a'"),
+])
+def test_refused_with_the_line_named(text: str, message: str):
+    with pytest.raises(ProgramError) as err:
+        parse_program(text)
+    assert message in str(err.value)
+
+
+@pytest.mark.parametrize("text", [
+    "G1 X1e3 Y2.5e-2 E0.04 F1800\n",  # exponents a firmware reads
+    "M117 infill nan inf\n",  # a message is text
+    "M23 inf.gco\n",  # so is a file name
+    "G1 X10\tY5\n",  # a tab separates words
+])
+def test_unusual_but_valid_lines_pass(text: str):
+    assert parse_program(text).commands
+
+
+def test_an_estimate_keeps_only_finite_figures():
+    prog = parse_program(';HOSTD_ESTIMATE {"time_s": Infinity, "filament_mm": 3}\nG28\n')
+    assert prog.estimate == {"filament_mm": 3.0}
+
+
+def test_one_bad_line_among_many_is_found():
+    lines = [f"G1 X{i % 50} Y{i % 7} E0.05 F1800" for i in range(2000)]
+    lines[1499] = "G1 X5 Ynan"
+    with pytest.raises(ProgramError, match="line 1500: Ynan is not a finite number"):
+        parse_program("\n".join(lines) + "\n")
+
+
+WORDS = ["G1", "G0", "M117", "M104", "X1", "Y2.5", "E0.04", "F1800", "X1e3", "X1e400", "Xnan",
+         "Yinf", "E-INF", "NaN", "info", "S210", "; note", "; infill", "(nan)", "a\x1ab",
+         "\x07", "\t", "1.e5", "Z.5E-2"]
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.lists(st.lists(st.sampled_from(WORDS), min_size=1, max_size=5), min_size=1,
+                max_size=12))
+def test_the_screen_never_spares_a_file_a_closer_look_would_refuse(lines: list[list[str]]):
+    """The whole-file screen only skips the per-command check: a file is refused exactly
+    when checking every one of its commands refuses it."""
+    text = "\n".join(" ".join(words) for words in lines) + "\n"
+    expected = None
+    for lineno, raw in enumerate(text.splitlines(), 1):
+        cmd = strip_gcode(raw)
+        if cmd is not None and expected is None:
+            try:
+                _check_command(cmd, lineno)
+            except ProgramError as exc:
+                expected = str(exc)
+    try:
+        parse_program(text)
+        got = None
+    except ProgramError as exc:
+        got = str(exc)
+    assert got == expected
