@@ -23,8 +23,9 @@ from hostd.control.server import Client
 from hostd.control.upload import PartUploads, write_base64
 from hostd.jobs.spool import Staged
 from hostd.jobs.states import JobState, JobStateError, parse_state
-from hostd.link.framing import CONTROL, strip_gcode
 from hostd.link.replies import Ok, Position, Temperatures
+from hostd.printer.errors import ProgramError
+from hostd.printer.program import parse_program
 
 if TYPE_CHECKING:
     from hostd.daemon import Daemon
@@ -52,11 +53,10 @@ def build_registry(d: Daemon) -> Registry:
         return d.snapshot()
 
     async def printer_gcode(ctx: Client, script: str) -> dict[str, Any]:
-        commands = [c for c in (strip_gcode(line) for line in script.splitlines()) if c]
-        for command in commands:
-            if bad := CONTROL.search(command):
-                raise RpcError(INVALID_PARAMS, f"script: control character "
-                               f"{bad[0]!r} in {command!r}")
+        try:  # the checks of a file: no control characters, only finite numbers
+            commands = parse_program(script).commands
+        except ProgramError as exc:
+            raise RpcError(INVALID_PARAMS, f"script: {exc}") from None
         if not commands:
             raise RpcError(INVALID_PARAMS, "script: no G-code commands")
         if len(commands) > RAW_MAX_LINES:

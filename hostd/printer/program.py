@@ -130,7 +130,7 @@ def parse_program(text: str) -> Program:
         if cmd is None:
             continue
         if check:
-            _check_command(cmd, lineno)
+            check_command(cmd, lineno)
         prog.commands.append(cmd)
         prog.source_lines.append(lineno)
     if open_tr is not None:
@@ -191,7 +191,7 @@ def _number(data: dict[str, Any], key: str, lineno: int) -> float:
 
 
 def _needs_line_checks(text: str) -> bool:
-    """Whether anything in ``text`` (comments included) may be what :func:`_check_command`
+    """Whether anything in ``text`` (comments included) may be what :func:`check_command`
     refuses: a control character, ``nan``, ``inf`` or a number's exponent. A screen of the
     whole file in a few C passes; a file that passes it, as the slicer's do, is spared the
     closer look at each of its commands (which costs more than its parse)."""
@@ -199,7 +199,7 @@ def _needs_line_checks(text: str) -> bool:
     return any(mark in screened for mark in (b"\0", b"#e", b"nan", b"inf"))
 
 
-def _check_command(cmd: str, lineno: int) -> None:
+def check_command(cmd: str, lineno: int) -> None:
     """Refuse a command a firmware would misread: a control character, or an argument such as
     ``X1e400`` or ``Xnan`` that is no finite number (messages aside: ``M117 info``)."""
     if bad := CONTROL.search(cmd):

@@ -131,7 +131,8 @@ async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
         with pytest.raises(RpcCallError) as err:
             await c.call("job.submit", name="x.gcode", data="***")
         assert err.value.code == -32602
-        for script, message in (("M117 a\x07b", "control character '\\x07'"),
+        for script, message in (("M117 a\x07b", "line 1: control character '\\x07'"),
+                                ("M105\nM104 Snan", "line 2: Snan is not a finite number"),
                                 ("M105\x00", "control character '\\x00'")):
             with pytest.raises(RpcCallError) as err:  # raw lines: never onto the wire
                 await c.call("printer.gcode", script=script)

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 from hostd.link.framing import strip_gcode
 from hostd.printer.errors import ProgramError
-from hostd.printer.program import _check_command, parse_program
+from hostd.printer.program import check_command, parse_program
 
 
 @pytest.mark.parametrize(("text", "message"), [
@@ -72,7 +72,7 @@ def test_the_screen_never_spares_a_file_a_closer_look_would_refuse(lines: list[l
         cmd = strip_gcode(raw)
         if cmd is not None and expected is None:
             try:
-                _check_command(cmd, lineno)
+                check_command(cmd, lineno)
             except ProgramError as exc:
                 expected = str(exc)
     try:
