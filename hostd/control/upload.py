@@ -21,11 +21,14 @@ import asyncio
 import binascii
 from collections.abc import Callable, Iterator
 
-from hostd.control.rpc import INVALID_PARAMS, RpcError
+from hostd.control.rpc import INVALID_PARAMS, UPLOAD_REJECTED, RpcError
 from hostd.jobs.spool import Staged
 
 SLICE_CHARS = 1 << 18
 """Characters decoded per slice (a multiple of 4, so slices end on whole groups)."""
+MAX_OPEN = 8
+"""Uploads in parts open at once, across connections: each holds a staging file of up to
+``daemon.max_upload_bytes`` on the spool's disk."""
 
 
 def base64_pieces(data: str, slice_chars: int = SLICE_CHARS) -> Iterator[bytes]:
@@ -99,6 +102,9 @@ class PartUploads:
         count. On any error the connection's upload is dropped."""
         if offset == 0:
             self.drop(conn)
+            if len(self.open) >= MAX_OPEN:
+                raise RpcError(UPLOAD_REJECTED, f"{MAX_OPEN} uploads in parts are in progress "
+                               "on other connections; submit or close one first")
             self.open[conn] = self.stage()
         staged = self.open.get(conn)
         if staged is None or staged.size != offset:
