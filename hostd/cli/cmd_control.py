@@ -11,6 +11,7 @@ import argparse
 import base64
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,9 @@ from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, CliError
 FINAL = {"completed", "failed", "cancelled", "interrupted"}
 PART_BYTES = 3 << 16
 """Bytes of a file a message carries when it is sent in parts (256 KiB of base64)."""
+SUBMIT_TIMEOUT = 600.0
+"""Seconds ``job.submit`` may take: the daemon checks the whole file (parses a G-code)
+before it answers, which for the largest files on a Pi takes far more than a plain call."""
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -83,7 +87,7 @@ def cmd_print(args: argparse.Namespace) -> int:
         if args.wait:
             c.call("events.subscribe", events=["job.state", "job.progress", "job.subpart",
                                                "subpart_started", "transition_failed"])
-        job = _submit(c, path.name, data)
+        job = _submit(c, path.name, data, None if args.json else _upload_progress(path.name))
         if not args.wait:
             if args.json:
                 _emit_json(job)
@@ -94,16 +98,35 @@ def cmd_print(args: argparse.Namespace) -> int:
     return EXIT_OK if final == "completed" else EXIT_FAILED
 
 
-def _submit(c: Client, name: str, data: bytes) -> dict[str, Any]:
+def _submit(c: Client, name: str, data: bytes,
+            progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
     """Queue the file: in one ``job.submit``, or when it is larger than :data:`PART_BYTES` in
-    parts (``job.upload``), so that no message holds the daemon's event loop long."""
-    if len(data) <= PART_BYTES:
-        return c.call("job.submit", name=name, data=base64.b64encode(data).decode())
-    view = memoryview(data)
-    for offset in range(0, len(data), PART_BYTES):
-        part = base64.b64encode(view[offset:offset + PART_BYTES]).decode()
-        c.call("job.upload", data=part, offset=offset)
-    return c.call("job.submit", name=name)
+    parts (``job.upload``), so that no message holds the daemon's event loop long;
+    ``progress(sent, total)`` after each part."""
+    if len(data) > PART_BYTES:
+        view = memoryview(data)
+        for offset in range(0, len(data), PART_BYTES):
+            part = base64.b64encode(view[offset:offset + PART_BYTES]).decode()
+            c.call("job.upload", data=part, offset=offset)
+            if progress is not None:
+                progress(min(offset + PART_BYTES, len(data)), len(data))
+        return c.call("job.submit", timeout=SUBMIT_TIMEOUT, name=name)
+    return c.call("job.submit", timeout=SUBMIT_TIMEOUT, name=name,
+                  data=base64.b64encode(data).decode())
+
+
+def _upload_progress(name: str) -> Callable[[int, int], None] | None:
+    """``uploading NAME: 42% of 27.2 MB`` on one line of a terminal's stderr (else nothing)."""
+    if not sys.stderr.isatty():
+        return None
+
+    def show(sent: int, total: int) -> None:
+        end = "\r\033[K" if sent == total else ""
+        sys.stderr.write(f"\ruploading {name}: {100 * sent // total}% of {total / 1e6:.1f} MB"
+                         + end)
+        sys.stderr.flush()
+
+    return show
 
 
 def _follow(c: Client, job: dict[str, Any], as_json: bool) -> str:
