@@ -64,3 +64,43 @@ def test_fuzzed_messages_never_break_the_daemon(daemon, payload):
         payload = payload.replace("\r", " ")
     loop.run_until_complete(_exchange(d.socket, payload))
     assert d.proc.returncode is None
+
+
+PARAMS = {  # every method's parameters (printer.estop left out: it halts the emulator)
+    "server.info": [], "printer.status": [], "printer.gcode": ["script"],
+    "job.submit": ["name", "data", "kind", "encoding"], "job.upload": ["data", "offset"],
+    "job.list": ["states", "limit"], "job.get": ["id"], "job.pause": ["id", "wait"],
+    "job.resume": ["id", "from"], "job.cancel": ["id", "wait"], "job.delete": ["id"],
+    "events.subscribe": ["events"], "events.unsubscribe": [], "sim.log": ["since"],
+}
+TOKENS = ["a", "\ud800", "\udfff", "\x00", "\x07", ".gcode", ".stl", "é", "G1 X", "nan", "1e400",
+          "\n", " ", "QUJD", "==", "G28", ";HOSTD_LAYER {", "gcode", "text", "layer"]
+odd_text = st.lists(st.sampled_from(TOKENS), max_size=6).map("".join)  # lone surrogates too
+odd_values = (st.integers(-(2**70), 2**70) | st.floats() | st.booleans() | st.none()
+              | odd_text | odd_text | st.text(max_size=20)
+              | st.lists(odd_text | st.integers(), max_size=3))
+calls = st.sampled_from(sorted(PARAMS)).flatmap(lambda m: st.tuples(
+    st.just(m), st.fixed_dictionaries({}, optional={p: odd_values for p in PARAMS[m]})))
+
+
+async def _call(path: Path, method: str, params: dict) -> dict:
+    async with asyncio.timeout(30):
+        r, w = await asyncio.open_unix_connection(str(path))
+        w.write(json.dumps({"jsonrpc": "2.0", "id": 1, "method": method, "params": params},
+                           allow_nan=True).encode() + b"\n")
+        await w.drain()
+        reply = json.loads(await r.readline())
+        w.close()
+        return reply
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=list(HealthCheck))
+@given(calls)
+def test_odd_params_get_a_clear_error_never_an_internal_one(daemon, call):
+    """Well-formed calls with odd values (huge integers, lone surrogates, control
+    characters, NaN, wrong types): an answer or an error naming the problem, never -32603."""
+    d, loop = daemon
+    method, params = call
+    reply = loop.run_until_complete(_call(d.socket, method, params))
+    assert reply.get("error", {}).get("code") != -32603, (method, params, reply)
+    assert d.proc.returncode is None

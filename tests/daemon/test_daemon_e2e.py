@@ -140,6 +140,12 @@ async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
         with pytest.raises(RpcCallError) as err:
             await c.call("job.get", id=10**30)
         assert err.value.code == -32602 and "out of range" in err.value.message
+        for params, message in (({"name": "a\ud800.gcode", "data": "RzI4Cg=="}, "name: not"),
+                                ({"name": "a.gcode", "data": "G28 ;\udfff\n", "encoding": "text"},
+                                 "data: not Unicode text")):
+            with pytest.raises(RpcCallError) as err:  # lone surrogates, which JSON can carry
+                await c.call("job.submit", **params)
+            assert err.value.code == -32602 and message in err.value.message
         await c.until_state(job["id"], "completed")
         jobs = (await c.call("job.list"))["jobs"]
         assert [j["id"] for j in jobs] == [job["id"]]
