@@ -23,6 +23,7 @@ MESSAGES = frozenset({"M117", "M118", "M23", "M28", "M30", "M32", "M928"})
 _SCREEN = bytes.maketrans(b"0123456789." + bytes([*range(0, 9), *range(11, 32), 127]),
                           b"#" * 11 + b"\0" * 31)
 """Digits and the point to ``#``, control characters (tab and newline aside) to NUL."""
+_MARKS = (b"\0", b"#e", b"nan", b"inf")
 
 
 @dataclass(frozen=True)
@@ -191,12 +192,42 @@ def _number(data: dict[str, Any], key: str, lineno: int) -> float:
 
 
 def _needs_line_checks(text: str) -> bool:
-    """Whether anything in ``text`` (comments included) may be what :func:`check_command`
-    refuses: a control character, ``nan``, ``inf`` or a number's exponent. A screen of the
-    whole file in a few C passes; a file that passes it, as the slicer's do, is spared the
-    closer look at each of its commands (which costs more than its parse)."""
-    screened = text.encode("utf-8").translate(_SCREEN).lower()
-    return any(mark in screened for mark in (b"\0", b"#e", b"nan", b"inf"))
+    """Whether a command of ``text`` may be one :func:`check_command` refuses: then every
+    command gets that closer look (which costs more than the parse). A screen in C passes
+    finds what such a command must hold (a control character, ``nan``, ``inf``, a number's
+    exponent); only the lines holding one are looked at, alone, and a comment's ``infill`` or
+    a header's ``1.3e-16`` spares the rest of the file. Text beyond ASCII is looked at whole
+    (``float`` reads other scripts' digits, and ``splitlines`` breaks lines at more than
+    ``\\n``)."""
+    if not text.isascii():
+        return True
+    data = text.encode("ascii")
+    screened = data.translate(_SCREEN).lower()
+    for mark in _MARKS:
+        at = screened.find(mark)
+        while at >= 0:
+            start = data.rfind(b"\n", 0, at) + 1
+            end = data.find(b"\n", at)
+            end = len(data) if end < 0 else end
+            if not _passes_alone(data[start:end].decode("ascii")):
+                return True
+            at = screened.find(mark, end)
+    return False
+
+
+def _passes_alone(line: str) -> bool:
+    """Whether one line is surely accepted (a control character anywhere in it, also one that
+    would split it in two, leaves it to the closer look)."""
+    if CONTROL.search(line):
+        return False
+    cmd = strip_gcode(line)
+    if cmd is None:
+        return True
+    try:
+        check_command(cmd, 0)
+    except ProgramError:
+        return False
+    return True
 
 
 def check_command(cmd: str, lineno: int) -> None:
