@@ -30,6 +30,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p = subparsers.add_parser("print", help="upload FILE (STL or G-code) and print it")
     p.add_argument("file")
     p.add_argument("--wait", action="store_true", help="show progress until the job ends")
+    p.add_argument("--kind", choices=("stl", "gcode"),
+                   help="what FILE is, when its extension does not say (.stl, .gcode)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_print)
 
@@ -87,7 +89,8 @@ def cmd_print(args: argparse.Namespace) -> int:
         if args.wait:
             c.call("events.subscribe", events=["job.state", "job.progress", "job.subpart",
                                                "subpart_started", "transition_failed"])
-        job = _submit(c, path.name, data, None if args.json else _upload_progress(path.name))
+        job = _submit(c, path.name, data, None if args.json else _upload_progress(path.name),
+                      kind=args.kind)
         if not args.wait:
             if args.json:
                 _emit_json(job)
@@ -99,7 +102,8 @@ def cmd_print(args: argparse.Namespace) -> int:
 
 
 def _submit(c: Client, name: str, data: bytes,
-            progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:
+            progress: Callable[[int, int], None] | None = None,
+            kind: str | None = None) -> dict[str, Any]:
     """Queue the file: in one ``job.submit``, or when it is larger than :data:`PART_BYTES` in
     parts (``job.upload``), so that no message holds the daemon's event loop long;
     ``progress(sent, total)`` after each part."""
@@ -110,8 +114,8 @@ def _submit(c: Client, name: str, data: bytes,
             c.call("job.upload", data=part, offset=offset)
             if progress is not None:
                 progress(min(offset + PART_BYTES, len(data)), len(data))
-        return c.call("job.submit", timeout=SUBMIT_TIMEOUT, name=name)
-    return c.call("job.submit", timeout=SUBMIT_TIMEOUT, name=name,
+        return c.call("job.submit", timeout=SUBMIT_TIMEOUT, name=name, kind=kind)
+    return c.call("job.submit", timeout=SUBMIT_TIMEOUT, name=name, kind=kind,
                   data=base64.b64encode(data).decode())
 
 

@@ -164,7 +164,7 @@ def upload_kind(name: str, kind: str | None) -> str:
     ext = Path(name).suffix.lower()
     if ext not in KINDS:
         raise SpoolError(f"{name or '(no name)'}: cannot tell the kind from the extension "
-                         "(.stl or .gcode); pass kind")
+                         "(.stl or .gcode); give the kind (hostctl print --kind)")
     return KINDS[ext]
 
 

@@ -58,6 +58,12 @@ async def test_hostctl_verbs_and_exit_codes(tmp_path):
             assert rc == 4 and "empty upload" in err
             rc, out, _ = await hostctl(d.socket, "print", str(gcode), "--json")
             assert rc == 0 and json.loads(out)["id"] == 2
+            plain = tmp_path / "part.txt"  # an extension that says nothing
+            plain.write_bytes(gcode.read_bytes())
+            rc, _, err = await hostctl(d.socket, "print", str(plain))
+            assert rc == 4 and "give the kind (hostctl print --kind)" in err
+            rc, out, _ = await hostctl(d.socket, "print", str(plain), "--kind", "gcode", "--json")
+            assert rc == 0 and json.loads(out)["kind"] == "gcode"
         finally:
             await d.stop()
 
