@@ -123,7 +123,7 @@ def main() -> None:
     print(f"{root}: hostctl print of a {args.lines}-line job while one prints")
     for k in range(args.runs):
         took, gaps = asyncio.run(one_run(root, args.lines))
-        longest: Any = " ".join(f"{g * 1e3:.1f}" for g in gaps[:-7:-1])
+        longest = " ".join(f"{g * 1e3:.1f}" for g in gaps[:-7:-1])
         print(f"run {k + 1}: hostctl print {took:.2f} s, {len(gaps)} ticks, "
               f"longest loop gaps (ms): {longest}", flush=True)
 

@@ -51,16 +51,6 @@ def base64_pieces(data: str, slice_chars: int = SLICE_CHARS) -> Iterator[bytes]:
     yield binascii.a2b_base64(data[start - lead:], strict_mode=True)[lead // 4 * 3:]
 
 
-async def decode_base64(data: str, slice_chars: int = SLICE_CHARS) -> bytes:
-    """``data`` decoded whole (see :func:`base64_pieces`), the loop's other callbacks run
-    between the slices."""
-    parts = []
-    for piece in base64_pieces(data, slice_chars):
-        parts.append(piece)
-        await asyncio.sleep(0)
-    return b"".join(parts)
-
-
 def _unpadded_length(data: str, window: int) -> int:
     """``len(data.rstrip("="))``, without copying a long ``data``."""
     end = len(data)
@@ -73,11 +63,11 @@ def _unpadded_length(data: str, window: int) -> int:
     return end
 
 
-async def write_base64(staged: Staged, data: str) -> None:
-    """Decode ``data`` into ``staged``, a slice at a time, each written on a thread;
-    :class:`RpcError` for data that is not base64."""
+async def write_base64(staged: Staged, data: str, slice_chars: int = SLICE_CHARS) -> None:
+    """Decode ``data`` into ``staged``, a slice at a time, each written on a thread (the
+    loop's other callbacks run meanwhile); :class:`RpcError` for data that is not base64."""
     try:
-        for piece in base64_pieces(data):
+        for piece in base64_pieces(data, slice_chars):
             await asyncio.to_thread(staged.write, piece)
     except ValueError:  # binascii.Error included
         raise RpcError(INVALID_PARAMS, "data: invalid base64") from None
