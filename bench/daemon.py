@@ -19,7 +19,10 @@ Targets: RSS < 80 MB idle, daemon streaming CPU < 10 % of a core (both phases), 
 
 ``acked_lines_per_read`` is the lines acknowledged per read of the port in the second phase
 (``serial.read_hold`` batches the ``ok`` while the wire is the bottleneck; ``--read-hold 0``
-reads each at once). The firmware's receive buffer sets how many a read can take in:
+reads each at once). ``link_timeouts`` and ``link_resends`` count the link's ``ok`` timeouts
+and resend requests over the job: a timeout is a stall of ``serial.ok_timeout`` (10 s) that
+the averages hide, so each should be 0; the daemon's warnings go to stderr. The firmware's
+receive buffer sets how many a read can take in:
 ``--rx-buffer BYTES`` gives the emulator and hostd another size than hostd's default.
 ``--advanced-ok`` has the emulator answer ``ok N<n> P<p> B<b>``, as a Marlin built with
 ADVANCED_OK does (the README's recommended build; stock Marlin answers a plain ``ok``).
@@ -129,7 +132,9 @@ async def spawn_emulator(rx_buffer: int, advanced_ok: bool
 
 async def spawn_daemon(tmp: Path, port: str, profile: str | None, partial: bool,
                        read_hold: float, rx_buffer: int, advanced_ok: bool
-                       ) -> tuple[asyncio.subprocess.Process, asyncio.Task[None]]:
+                       ) -> tuple[asyncio.subprocess.Process, asyncio.Task[None], list[str]]:
+    """Start hostd on ``port``; its process, the task draining its stderr, and the warnings
+    and errors it logs (filled as they come)."""
     cfg = tmp / "hostd.yaml"
     cfg.write_text(json.dumps({
         "daemon": {"socket": str(tmp / "hostd.sock"), "state_dir": str(tmp / "state"),
@@ -144,16 +149,19 @@ async def spawn_daemon(tmp: Path, port: str, profile: str | None, partial: bool,
         stderr=asyncio.subprocess.PIPE, cwd=str(ROOT))
     assert proc.stderr is not None
     log: deque[str] = deque(maxlen=50)
+    warned: list[str] = []
     while READY not in (line := (await proc.stderr.readline()).decode()):
         if not line:
             raise RuntimeError("hostd exited:\n" + "".join(log))
         log.append(line)
-    return proc, asyncio.create_task(_drain(proc.stderr, log))
+    return proc, asyncio.create_task(_drain(proc.stderr, log, warned)), warned
 
 
-async def _drain(stream: asyncio.StreamReader, log: deque[str]) -> None:
-    while line := await stream.readline():
-        log.append(line.decode())
+async def _drain(stream: asyncio.StreamReader, log: deque[str], warned: list[str]) -> None:
+    while line := (await stream.readline()).decode():
+        log.append(line)
+        if line.startswith(("WARNING", "ERROR")):
+            warned.append(line)
 
 
 WATCHED = ["job.state", "job.progress", "job.subpart", "subpart_started", "transition_failed"]
@@ -262,6 +270,9 @@ async def poll(c: Client, pids: dict[str, int]
     assert link0 is not None
     out["acked_lines_per_read"] = ((link1["lines_acked"] - link0["lines_acked"])
                                    / max(1, link1["reads"] - link0["reads"]))
+    # since the job began: a timeout is a 10 s stall that the CPU and rate figures hide
+    out["link_timeouts"] = link1["timeouts"]
+    out["link_resends"] = link1["resend_requests"]
     return out, (acked[0][1], acked[-1][1])
 
 
@@ -283,7 +294,7 @@ async def bench(tmp: Path, in_process: bool, profile: str | None,
     if not in_process:
         emu, port = await spawn_emulator(rx_buffer, advanced_ok)
     try:
-        proc, drain = await spawn_daemon(tmp, port, profile, partial, read_hold, rx_buffer,
+        proc, drain, warned = await spawn_daemon(tmp, port, profile, partial, read_hold, rx_buffer,
                                          advanced_ok)
         try:
             r, w = await asyncio.open_unix_connection(str(tmp / "hostd.sock"))
@@ -298,6 +309,7 @@ async def bench(tmp: Path, in_process: bool, profile: str | None,
             proc.send_signal(signal.SIGINT if profile else signal.SIGTERM)
             await proc.wait()
             await drain
+            sys.stderr.write("".join(f"hostd logged: {line}" for line in warned))
     finally:  # also when the daemon fails to start: no emulator left behind
         if emu is not None:
             emu.terminate()

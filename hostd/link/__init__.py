@@ -61,7 +61,8 @@ executed that line (a lost ``ok`` delays it, never advances it). Errors:
 ``LinkError`` ⊃ ``FirmwareReset`` (job interrupted), ``FirmwareHalted`` ⊃ ``EmergencyStop``,
 ``LinkLost`` (timeout after the nudge, or port gone: the link reconnects with backoff),
 ``ResendLoop``, ``HistoryExhausted``, ``NotConnected``. After a reset the link handshakes again
-by itself; after a halt, call ``connect()`` again.
+by itself; after a halt, call ``connect()`` again. What the link recovers from by itself (an
+``ok`` timeout and its nudge, a resend) is logged as a warning naming the port and the line.
 
 ``status()`` keys: ``state``, ``connected``, ``port``, ``firmware_name``, ``capabilities``,
 ``temperatures`` (heater → actual/target/power), ``position`` (X, Y, Z, A, C, E),

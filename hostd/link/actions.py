@@ -46,4 +46,12 @@ class Failed:
     error: LinkError
 
 
-Action = Write | Acked | Answer | Connected | Failed
+@dataclass(frozen=True)
+class Notice:
+    """Something went wrong on the wire and the link is recovering (a timeout's nudge, a
+    resend): for the operator's log."""
+
+    message: str
+
+
+Action = Write | Acked | Answer | Connected | Failed | Notice

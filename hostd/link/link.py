@@ -13,13 +13,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import time
 from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Sequence
 from typing import Any
 
 from hostd.link import errors
-from hostd.link.actions import Acked, Action, Answer, Connected, Failed, Write
+from hostd.link.actions import Acked, Action, Answer, Connected, Failed, Notice, Write
 from hostd.link.framing import strip_gcode
 from hostd.link.protocol import Protocol
 from hostd.link.replies import FirmwareInfo, Ok, Position, Reply, Temperatures
@@ -27,6 +28,7 @@ from hostd.link.settings import LinkSettings
 from hostd.link.transport import Connection, open_port
 from hostd.sim.settings import SimSettings
 
+log = logging.getLogger(__name__)
 Opener = Callable[[LinkSettings, SimSettings | None], Awaitable[Connection]]
 _EXPECTED: dict[str, type] = {"M114": Position, "M105": Temperatures, "M115": FirmwareInfo}
 
@@ -265,6 +267,8 @@ class SerialLink:
                 self._handshake.set_result(None)
         elif isinstance(action, Failed):
             self._failed(action.error)
+        elif isinstance(action, Notice):
+            log.warning("%s: %s", self.settings.port, action.message)
 
     def _answer(self, answer: Answer) -> None:
         code, fut = self._queries.pop(answer.line, ("", None))

@@ -19,6 +19,7 @@ import tty
 from dataclasses import fields
 from pathlib import Path
 
+from hostd.sim.pty_writer import PtyWriter
 from hostd.sim.server import Emulator
 from hostd.sim.settings import SimSettings
 
@@ -58,7 +59,8 @@ async def serve_pty(settings: SimSettings, log: Path | None = None) -> None:
     os.set_blocking(master, False)
     print(os.ttyname(slave), flush=True)
     loop = asyncio.get_running_loop()
-    emulator = Emulator(settings, lambda data: _write_all(master, data))
+    writer = PtyWriter(loop, master)
+    emulator = Emulator(settings, writer.write)
     stop = asyncio.Event()
     loop.add_reader(master, _on_readable, master, emulator)
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -68,6 +70,7 @@ async def serve_pty(settings: SimSettings, log: Path | None = None) -> None:
     finally:
         loop.remove_reader(master)
         emulator.close()
+        writer.close()
         os.close(master)
         os.close(slave)
         if log is not None:
@@ -84,12 +87,6 @@ def _on_readable(fd: int, emulator: Emulator) -> None:
     with contextlib.suppress(BlockingIOError, InterruptedError):
         data = os.read(fd, 4096)
         emulator.feed(data)
-
-
-def _write_all(fd: int, data: bytes) -> None:
-    """Write to the pty master; when no host drains it, replies are dropped like on a wire."""
-    with contextlib.suppress(BlockingIOError, InterruptedError):
-        os.write(fd, data)
 
 
 def precise_loop() -> asyncio.AbstractEventLoop:

@@ -117,23 +117,32 @@ class Emulator:
     # -- output -------------------------------------------------------------------------
 
     def _flush(self, produced: float) -> None:
-        """Send the firmware's replies, produced at ``produced``, at the wire rate."""
+        """Send the firmware's replies, produced at ``produced``, at the wire rate: each
+        line leaves when its last byte has crossed the wire, as on a real one (a burst of
+        replies, such as a heat-up's reports in fast mode, arrives over the time it takes,
+        not at once at the end)."""
         data = self.firmware.take_output()
         if not data or self.closed:
             return
         if self._rate == float("inf"):
             self._write(data)
             return
-        self._out_free = max(self._out_free, produced) + len(data) / self._rate
-        self._outbox.append((self._out_free, data))
-        if self._out_timer is None:  # else the armed timer reaches this reply in turn
+        free = max(self._out_free, produced)
+        for line in data.splitlines(keepends=True):
+            free += len(line) / self._rate
+            self._outbox.append((free, line))
+        self._out_free = free
+        if self._out_timer is None:  # else the armed timer reaches these replies in turn
             self._drain_outbox()
 
     def _drain_outbox(self) -> None:
         self._out_timer = None
         now = self._loop.time()
-        while self._outbox and self._outbox[0][0] <= now and not self.closed:
-            self._write(self._outbox.popleft()[1])
+        due: list[bytes] = []
+        while self._outbox and self._outbox[0][0] <= now:
+            due.append(self._outbox.popleft()[1])
+        if due and not self.closed:
+            self._write(b"".join(due))
         if self._outbox and not self.closed:
             self._out_timer = self._loop.call_at(self._outbox[0][0], self._drain_outbox)
 

@@ -88,7 +88,8 @@ async def test_firmware_reset_interrupts_the_job_at_the_last_acknowledged_line()
 
 
 @pytest.mark.asyncio
-async def test_a_silent_board_is_nudged_and_the_swallowed_lines_are_resent() -> None:
+async def test_a_silent_board_is_nudged_and_the_swallowed_lines_are_resent(
+        caplog: pytest.LogCaptureFixture) -> None:
     link = SerialLink(FAST, SimSettings(silence_at_line=100, silence_lines=4))
     lines = moves(400)
     async with asyncio.timeout(30):
@@ -100,6 +101,10 @@ async def test_a_silent_board_is_nudged_and_the_swallowed_lines_are_resent() -> 
     assert acked == list(range(400))
     assert executed(firmware) == lines
     assert timeouts >= 1
+    # the journal tells the operator: the timeout and its nudge, then the resend
+    logged = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert sum("no ok for 0.3 s" in m and "nudge" in m for m in logged) == timeouts
+    assert any(m.startswith("sim://: firmware asked for line") for m in logged)
 
 
 @pytest.mark.asyncio

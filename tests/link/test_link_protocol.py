@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from hostd.link.actions import Acked, Action, Answer, Connected, Failed, Write
+from hostd.link.actions import Acked, Action, Answer, Connected, Failed, Notice, Write
 from hostd.link.errors import (
     EmergencyStop,
     FirmwareHalted,
@@ -30,6 +30,10 @@ def wire(actions: list[Action]) -> str:
 
 def acks(actions: list[Action]) -> list[int]:
     return [a.line for a in actions if isinstance(a, Acked)]
+
+
+def notices(actions: list[Action]) -> list[str]:
+    return [a.message for a in actions if isinstance(a, Notice)]
 
 
 def failures(actions: list[Action]) -> list[object]:
@@ -126,6 +130,18 @@ def test_resend_rewinds_and_duplicate_requests_are_ignored() -> None:
     assert acks(actions) == [1, 2, 3]
 
 
+def test_a_resend_is_noted_for_the_log_once_per_request_acted_on() -> None:
+    p = ready()
+    for cmd in ("G1 X1", "G1 X2", "G1 X3"):
+        p.submit(cmd, 0.0)
+    p.receive("Error:checksum mismatch, Last Line: 1", 0.1)
+    assert notices(p.receive("Resend: 2", 0.1)) == [
+        "firmware asked for line 2 again: resending 2 line(s)"]
+    p.receive("ok", 0.1)
+    p.receive("Error:Line Number is not Last Line Number+1, Last Line: 1", 0.1)
+    assert notices(p.receive("Resend: 2", 0.1)) == []  # the line after it, rejected too
+
+
 def test_a_line_rejected_too_often_fails_the_job() -> None:
     p = ready(resend_limit=3)
     p.submit("G1 X1", 0.0)
@@ -149,8 +165,10 @@ def test_m105_answer_is_a_barrier_after_a_timeout() -> None:
     p.submit("G1 X1", 0.0)
     p.submit("G1 X2", 0.0)
     assert p.deadline() == pytest.approx(1.0)
-    nudge = writes(p.tick(1.0))
-    assert nudge == ["N3 M105*36"]
+    assert notices(p.tick(0.99)) == []
+    actions = p.tick(1.0)
+    assert writes(actions) == ["N3 M105*36"]
+    assert notices(actions) == ["no ok for 1 s (line 1 awaited, 2 sent): M105 nudge 1 of 1"]
     assert acks(p.receive("ok T:20.0 /0.0 B:20.0 /0.0", 1.1)) == [2]
 
 
