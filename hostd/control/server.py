@@ -91,6 +91,7 @@ class ControlServer:
         self._ids = itertools.count(1)
         self._server: asyncio.AbstractServer | None = None
         self._tasks: set[asyncio.Task[None]] = set()
+        self._closing = False
         self._unsubscribe = bus.subscribe(self._broadcast)
         self.requests = 0
         self.connections = 0
@@ -146,6 +147,7 @@ class ControlServer:
         raise ControlError(f"{self.path}: another daemon is listening")
 
     async def close(self) -> None:
+        self._closing = True
         self._unsubscribe()
         if self._server is not None:
             self._server.close()
@@ -176,6 +178,11 @@ class ControlServer:
             await self._read_loop(client, reader)
         except (ConnectionError, asyncio.IncompleteReadError) as exc:
             log.debug("client %d: %s", client.id, exc)
+        except asyncio.CancelledError:
+            if not self._closing:
+                raise
+            # the server stops: the connection ends as a normal close would (a task ending
+            # cancelled is reported as an error by asyncio's stream callback on Python 3.11)
         finally:
             self.clients.pop(client.id, None)
             client.queue.put_nowait(None)

@@ -219,3 +219,32 @@ async def test_second_server_on_a_live_socket_is_refused(tmp_path):
         with pytest.raises(Exception, match="another daemon"):
             await ControlServer(path, make_registry(), bus, 4096).start()
         await first.close()
+
+
+@pytest.mark.asyncio
+async def test_closing_with_clients_connected_leaves_nothing_for_the_loop_to_report(tmp_path):
+    """A stop with clients still connected (``hostctl watch``, a dashboard) ends each
+    connection's task: asyncio's stream callback on Python 3.11 reports a task that ended
+    cancelled as an error ("Exception in callback ..."), which would reach the journal on
+    every stop."""
+    loop = asyncio.get_running_loop()
+    contexts: list[dict] = []
+    loop.set_exception_handler(lambda _loop, context: contexts.append(context))
+    path = tmp_path / "s.sock"
+    server = ControlServer(path, make_registry(), EventBus(), max_message=4096)
+    try:
+        async with asyncio.timeout(10):
+            await server.start()
+            clients = [await asyncio.open_unix_connection(str(path)) for _ in range(3)]
+            for r, w in clients:  # each connection served: its task is running
+                w.write(b'{"jsonrpc": "2.0", "id": 1, "method": "echo", "params": ["z"]}\n')
+                await w.drain()
+                assert json.loads(await r.readline())["result"] == "z"
+            await server.close()
+            for r, _ in clients:
+                assert await r.read() == b""  # closed by the server
+            for _ in range(3):  # the tasks' done callbacks run
+                await asyncio.sleep(0)
+    finally:
+        loop.set_exception_handler(None)
+    assert contexts == []
