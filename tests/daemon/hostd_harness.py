@@ -166,6 +166,11 @@ class DaemonProc:
     async def rpc(self) -> Rpc:
         return await Rpc.connect(self.socket)
 
+    def loop_errors(self) -> list[str]:
+        """What asyncio or a traceback put in the log: nothing, in a run that went well."""
+        marks = ("Exception in callback", "never retrieved", "Traceback", "ERROR asyncio")
+        return [line for line in self.stderr if any(m in line for m in marks)]
+
     async def stop(self, sig: int = signal.SIGTERM) -> int:
         assert self.proc is not None
         if self.proc.returncode is None:

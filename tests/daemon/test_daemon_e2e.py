@@ -45,7 +45,7 @@ async def test_gcode_job_completes_every_line_once_in_order(daemon_factory):
         assert status["jobs"]["transitions"] == {"total": 2, "failed": 0}
         await c.close()
     assert await d.stop() == 0
-    assert not d.socket.exists()
+    assert not d.socket.exists() and d.loop_errors() == []
 
 
 async def test_pause_resume_then_cancel_mid_print(daemon_factory):
@@ -300,6 +300,7 @@ async def test_sigterm_mid_print_records_interrupted_with_modal_state(daemon_fac
         job = await c.submit_text("long.gcode", text)
         await c.until(lambda e: e["progress"] > 0.1)
         assert await d.stop(signal.SIGTERM) == 0
+        assert d.loop_errors() == []  # a client was still connected
         await c.close()
         await d.start()
         c = await d.rpc()
