@@ -30,6 +30,7 @@ from hostd.printer.streamer import Hooks, Port, Streamer, StreamSettings
 from hostd.slicing_worker import SliceError, SlicingWorker
 
 log = logging.getLogger(__name__)
+_TROUBLE = (JobState.FAILED, JobState.INTERRUPTED)  # logged as warnings: the operator acts
 
 PERSIST_INTERVAL = 0.25  # s between progress writes (also at every layer change)
 EVENT_INTERVAL = 0.2  # s between progress events
@@ -462,6 +463,9 @@ class JobManager:
         return job
 
     def _emit_state(self, job: Job, old: JobState | None, reason: str) -> None:
+        level = logging.WARNING if job.state in _TROUBLE else logging.INFO
+        log.log(level, "job %d %r: %s -> %s (%s)", job.id, job.name,
+                "new" if old is None else old.value, job.state.value, reason)
         self.bus.publish("job.state", {"job_id": job.id, "name": job.name,
                                        "old": None if old is None else old.value,
                                        "new": job.state.value, "reason": reason})

@@ -46,6 +46,10 @@ async def test_gcode_job_completes_every_line_once_in_order(daemon_factory):
         await c.close()
     assert await d.stop() == 0
     assert not d.socket.exists() and d.loop_errors() == []
+    states = [ln.split(": ", 1)[1].strip() for ln in d.stderr if "hostd.jobs.manager: job" in ln]
+    steps = ["new -> queued", "queued -> ready", "ready -> printing", "printing -> completed"]
+    assert [s.split(" (")[0] for s in states] == [
+        f"job {job['id']} 'pipe3.gcode': {step}" for step in steps]
 
 
 async def test_pause_resume_then_cancel_mid_print(daemon_factory):
@@ -301,6 +305,11 @@ async def test_sigterm_mid_print_records_interrupted_with_modal_state(daemon_fac
         await c.until(lambda e: e["progress"] > 0.1)
         assert await d.stop(signal.SIGTERM) == 0
         assert d.loop_errors() == []  # a client was still connected
+        # the journal tells the operator what became of the job, as a warning
+        ended = [ln for ln in d.stderr if ln.startswith(f"WARNING hostd.jobs.manager: job "
+                                                        f"{job['id']} 'long.gcode': printing "
+                                                        "-> interrupted (")]
+        assert len(ended) == 1 and "SIGTERM" in ended[0]
         await c.close()
         await d.start()
         c = await d.rpc()
