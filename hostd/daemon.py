@@ -261,10 +261,10 @@ class Daemon:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        if self._jobs is not None:  # first, so that clients get the job's last state
+            await self._jobs.stop("daemon stopped (SIGTERM)")
         if self.server is not None:
             await self.server.close()
-        if self._jobs is not None:
-            await self._jobs.stop("daemon stopped (SIGTERM)")
         with contextlib.suppress(LinkError):
             await self.link.close()
         if self.worker is not None:

@@ -149,6 +149,9 @@ def _follow(c: Client, job: dict[str, Any], as_json: bool) -> str:
             bar.reason = data.get("reason", "")
             if not as_json:
                 bar.line_break(f"job {job_id} {data['new']}: {data.get('reason', '')}")
+                if data["new"] == "interrupted":
+                    bar.line_break(f"resume it with: hostctl resume {job_id} "
+                                   "[--from checkpoint|subpart|layer]")
             if data["new"] in FINAL:
                 return str(data["new"])
         elif event == "job.progress" and not as_json:

@@ -96,3 +96,25 @@ async def test_hostctl_sends_a_large_file_in_parts(tmp_path):
             assert rc == 4 and f"exceeds the limit of {4 * PART_BYTES} bytes" in err
         finally:
             await d.stop()
+
+
+@pytest.mark.asyncio
+async def test_print_wait_tells_how_to_resume_when_hostd_stops_mid_print(tmp_path):
+    """hostd stopped (SIGTERM) mid-print: ``hostctl print --wait`` shows the job interrupted,
+    and how to resume it, not a bare lost connection."""
+    d = DaemonProc(tmp_path, sim__throttle=True)
+    gcode = tmp_path / "long.gcode"
+    gcode.write_text(make_gcode(subparts=1, layers=20, per_layer=200))
+    async with asyncio.timeout(90):
+        await d.start()
+        watcher = await d.rpc()
+        await watcher.call("events.subscribe", events=["job.progress"])
+        printing = asyncio.create_task(hostctl(d.socket, "print", str(gcode), "--wait"))
+        await watcher.until(lambda e: e["progress"] > 0.05)
+        await d.stop()
+        rc, out, err = await printing
+        await watcher.close()
+    assert rc == 1, err
+    lines = out.splitlines()
+    assert lines[-2].startswith("job 1 interrupted: daemon stopped (SIGTERM) at line ")
+    assert lines[-1] == "resume it with: hostctl resume 1 [--from checkpoint|subpart|layer]"

@@ -300,11 +300,14 @@ async def test_sigterm_mid_print_records_interrupted_with_modal_state(daemon_fac
     text = make_gcode(subparts=1, layers=20, per_layer=200)
     async with asyncio.timeout(60):
         c = await d.rpc()
-        await c.call("events.subscribe", events=["job.progress"])
+        await c.call("events.subscribe", events=["job.progress", "job.state"])
         job = await c.submit_text("long.gcode", text)
-        await c.until(lambda e: e["progress"] > 0.1)
+        await c.until(lambda e: e["event"] == "job.progress" and e["progress"] > 0.1)
         assert await d.stop(signal.SIGTERM) == 0
         assert d.loop_errors() == []  # a client was still connected
+        # and it was told what became of the job before the connection closed
+        last = await c.until_state(job["id"], "interrupted")
+        assert last["old"] == "printing" and "SIGTERM" in last["reason"]
         # the journal tells the operator what became of the job, as a warning
         ended = [ln for ln in d.stderr if ln.startswith(f"WARNING hostd.jobs.manager: job "
                                                         f"{job['id']} 'long.gcode': printing "
