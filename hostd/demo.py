@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 import yaml
@@ -45,14 +46,19 @@ def write_config(tmp: Path) -> Path:
     return path
 
 
-def start_daemon(config: Path) -> subprocess.Popen[str]:
+def start_daemon(config: Path) -> tuple[subprocess.Popen[str], threading.Thread, list[str]]:
+    """hostd, once ready; its log from then on is collected by a thread (a pipe left unread
+    would stop the daemon at its first 64 KB of log) and shown when it stops."""
     proc = subprocess.Popen([sys.executable, "-m", "hostd.main", "--config", str(config)],
                             stderr=subprocess.PIPE, text=True)
     assert proc.stderr is not None
     for line in proc.stderr:
         sys.stderr.write(line)
         if READY in line:
-            return proc
+            log: list[str] = []
+            reader = threading.Thread(target=log.extend, args=(proc.stderr,), daemon=True)
+            reader.start()
+            return proc, reader, log
     raise SystemExit(f"demo: hostd exited with {proc.wait()}")
 
 
@@ -62,7 +68,7 @@ def main() -> int:
         config = write_config(tmp)
         sample = sample_file(tmp)
         print(f"demo: starting hostd on the emulator (state in {tmp})")
-        proc = start_daemon(config)
+        proc, reader, log = start_daemon(config)
         try:
             sock = str(tmp / "hostd.sock")
             print(f"demo: hostctl print {sample.name} --wait")
@@ -70,10 +76,9 @@ def main() -> int:
             hostctl(["--socket", sock, "jobs"])
         finally:
             proc.send_signal(signal.SIGTERM)
-            assert proc.stderr is not None
-            for line in proc.stderr:
-                sys.stderr.write(line)
             proc.wait()
+            reader.join()
+            sys.stderr.write("demo: hostd's log while it ran:\n" + "".join(log))
         print(f"demo: hostd stopped (exit {proc.returncode}); print exit status {rc}")
         return rc if proc.returncode == 0 else 1
 
