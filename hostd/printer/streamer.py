@@ -6,7 +6,8 @@ per batch of acknowledgements, and whenever the state is read, so what a reader 
 always the state of the acknowledged prefix), and between two lines it may stop: for a
 pause (retract, lift along Z, wait, restore), a cancel (the end script) or a rotate/return
 transition run as a transaction (M400, temperature check, block, M400, M114 readback,
-checkpoint).
+checkpoint). Wherever it waits for every line to be acknowledged, an ``M105`` goes after them
+as a barrier (:meth:`Streamer._drain`), so a plain ``ok`` lost on the wire costs no timeout.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from hostd.printer.modal import ModalState
 from hostd.printer.program import Program, Transition
 
 log = logging.getLogger(__name__)
+BARRIER = "M105"  # answered "ok T:...": the ok that says which line it acknowledges
 
 
 class Port(Protocol):
@@ -255,9 +257,26 @@ class Streamer:
             self.layer = mark.layer
 
     async def _drain(self) -> None:
-        while self._inflight:
-            await _settled(self._inflight[0].acked)
-            self._ack_head()
+        """Until every line submitted is acknowledged (before a transition, a pause, the end).
+
+        An ``M105`` follows them as a barrier: its ``ok T:`` is the one answer that names its
+        line, so it acknowledges every line before it even when the plain ``ok`` of one of
+        them was lost on the wire, which the link would otherwise only notice at its
+        ``serial.ok_timeout`` (10 s of the nozzle standing on the part)."""
+        if not self._inflight:
+            return
+        self.stats.extra_commands.append(BARRIER)
+        barrier = asyncio.ensure_future(self.port.query(BARRIER))
+        try:
+            while self._inflight:
+                await _settled(self._inflight[0].acked)
+                self._ack_head()
+            await barrier
+        finally:  # cancelled, or a batch failed: the link fails the barrier too
+            if not barrier.done():
+                barrier.cancel()
+            elif not barrier.cancelled():
+                barrier.exception()  # retrieved: the batch's error is the one raised
 
     async def _extra(self, command: str) -> None:
         """A command of the host's own (pause, restore, transaction), acknowledged at once."""
