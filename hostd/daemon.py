@@ -216,10 +216,16 @@ class Daemon:
             self.metrics = None
 
     async def _temperature_monitor(self) -> None:
-        """Publish temperatures: queried while idle, observed from the link while printing."""
+        """Publish temperatures, queried with ``M105`` every :data:`TEMPERATURE_INTERVAL`.
+
+        While a job prints, the query goes in line after the lines already queued (as
+        OctoPrint polls): without it, a board that does not autoreport would show the
+        temperatures of the job's start until its end. Its ``ok T:`` also acknowledges every
+        line before it, so a plain ``ok`` lost on the wire narrows the window for two seconds
+        at most."""
         while True:
             temps = self.link.status().get("temperatures") or {}
-            if self.jobs.active is None and self.link.connected:
+            if self.link.connected:
                 with contextlib.suppress(LinkError):
                     reply = await self.link.query("M105")
                     if isinstance(reply, Temperatures):

@@ -322,3 +322,24 @@ async def test_sigterm_mid_print_records_interrupted_with_modal_state(daemon_fac
         assert [h["new"] for h in got["history"]][-2:] == ["printing", "interrupted"]
         await c.close()
     await d.stop()
+
+
+async def test_temperatures_stay_live_while_a_job_prints(daemon_factory):
+    """A heater target changed by the job itself shows in the pushed temperatures and in
+    printer.status while the job still prints: hostd queries them during a print too."""
+    d = daemon_factory(sim__throttle=True)
+    await d.start()
+    text = make_gcode(subparts=1, layers=20, per_layer=200)
+    first_layer = text.index(";HOSTD_LAYER")
+    text = text[:first_layer] + "M104 S215\n" + text[first_layer:]
+    async with asyncio.timeout(60):
+        c = await d.rpc()
+        await c.call("events.subscribe", events=["printer.temperatures"])
+        job = await c.submit_text("hot.gcode", text)
+        await c.until(lambda e: e["heaters"]["T"]["target"] == 215.0)
+        status = await c.call("printer.status")
+        assert status["jobs"]["current"]["id"] == job["id"]  # still printing
+        assert status["jobs"]["current"]["state"] == "printing"
+        assert status["link"]["temperatures"]["T"]["target"] == 215.0
+        await c.close()
+    await d.stop()
