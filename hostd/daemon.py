@@ -221,8 +221,8 @@ class Daemon:
         While a job prints, the query goes in line after the lines already queued (as
         OctoPrint polls): without it, a board that does not autoreport would show the
         temperatures of the job's start until its end. Its ``ok T:`` also acknowledges every
-        line before it, so a plain ``ok`` lost on the wire narrows the window for two seconds
-        at most."""
+        line before it, so a plain ``ok`` lost on the wire narrows the window for about two
+        seconds."""
         while True:
             temps = self.link.status().get("temperatures") or {}
             if self.link.connected:
