@@ -46,7 +46,7 @@ log = logging.getLogger("hostd")
 
 EXIT_OK = 0
 EXIT_FAILED = 1
-TEMPERATURE_INTERVAL = 2.0  # s between idle temperature reports
+TEMPERATURE_INTERVAL = 2.0  # s between temperature queries (and reports)
 MESSAGE_OVERHEAD = 64 * 1024  # JSON-RPC envelope around a base64 upload
 
 
