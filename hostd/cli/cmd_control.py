@@ -207,6 +207,17 @@ def _hms(seconds: float) -> str:
     return f"{s // 3600}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
+LINK_TROUBLE = (("timeouts", "ok timeout"), ("resend_requests", "resend request"),
+                ("checksum_errors", "checksum error"), ("resets", "firmware reset"),
+                ("reconnects", "reconnect"))
+
+
+def link_trouble(link: dict[str, Any]) -> str:
+    """``2 ok timeouts, 1 resend request``: the link's non-zero trouble counters, or ``""``."""
+    counts = [(int(link.get(key) or 0), name) for key, name in LINK_TROUBLE]
+    return ", ".join(f"{n} {name}{'s' if n > 1 else ''}" for n, name in counts if n)
+
+
 def cmd_status(args: argparse.Namespace) -> int:
     with _client(args) as c:
         snap = c.call("printer.status")
@@ -217,6 +228,9 @@ def cmd_status(args: argparse.Namespace) -> int:
     jobs = snap.get("jobs", {})
     print(f"printer: {snap['daemon']['info'].get('machine')}  link: "
           f"{link.get('state', '?')}  port: {link.get('port')}")
+    trouble = link_trouble(link)
+    if trouble:
+        print(f"  link trouble since hostd started: {trouble}")
     for name, t in (link.get("temperatures") or {}).items():
         print(f"  {name}: {t.get('actual')} / {t.get('target')} °C")
     cur = jobs.get("current")

@@ -45,7 +45,7 @@ async def test_hostctl_verbs_and_exit_codes(tmp_path):
             rc, out, _ = await hostctl(d.socket, "status", "--json")
             assert rc == 0 and json.loads(out)["jobs"]["finished"]["completed"] == 1
             rc, out, _ = await hostctl(d.socket, "status")
-            assert rc == 0 and "no job printing" in out
+            assert rc == 0 and "no job printing" in out and "link trouble" not in out
             rc, out, _ = await hostctl(d.socket, "send", "M114", "--json")
             assert rc == 0 and "position" in json.loads(out)["replies"][0]
             rc, _, err = await hostctl(d.socket, "pause")
@@ -118,3 +118,23 @@ async def test_print_wait_tells_how_to_resume_when_hostd_stops_mid_print(tmp_pat
     lines = out.splitlines()
     assert lines[-2].startswith("job 1 interrupted: daemon stopped (SIGTERM) at line ")
     assert lines[-1] == "resume it with: hostctl resume 1 [--from checkpoint|subpart|layer]"
+
+
+@pytest.mark.asyncio
+async def test_status_shows_the_link_trouble_of_a_noisy_line(tmp_path):
+    d = DaemonProc(tmp_path, sim__bit_flip_prob=0.02)  # seeded: some lines arrive garbled
+    gcode = tmp_path / "part.gcode"
+    gcode.write_text(make_gcode(subparts=1, layers=2, per_layer=100))
+    async with asyncio.timeout(60):
+        await d.start()
+        try:
+            rc, _, err = await hostctl(d.socket, "print", str(gcode), "--wait")
+            assert rc == 0, err
+            rc, out, _ = await hostctl(d.socket, "status")
+            rc_json, raw, _ = await hostctl(d.socket, "status", "--json")
+        finally:
+            await d.stop()
+    link = json.loads(raw)["link"]
+    assert rc == rc_json == 0 and link["resend_requests"] > 0
+    (line,) = [ln for ln in out.splitlines() if "link trouble" in ln]
+    assert f"{link['resend_requests']} resend request" in line
