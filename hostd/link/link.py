@@ -329,20 +329,25 @@ class SerialLink:
 
     def _start_reconnect(self) -> None:
         if self._reconnect_task is None or self._reconnect_task.done():
+            log.warning("%s: link lost (%s); reconnecting", self.settings.port, self.last_error)
             self._drop_connection()
             self._reconnect_task = asyncio.get_running_loop().create_task(self._reconnect())
 
     async def _reconnect(self) -> None:
         """Reopen the port with exponential backoff until it works or :meth:`close`."""
         delay = self.settings.reconnect_min
+        attempts = 0
         while not self._closed:
-            await asyncio.sleep(delay)
+            await asyncio.sleep(delay)  # backoff period, not synchronisation
+            attempts += 1
             try:
                 await self._open_and_handshake()
-            except (OSError, errors.LinkError):
+            except (OSError, errors.LinkError) as exc:
+                log.debug("%s: reconnect attempt %d: %s", self.settings.port, attempts, exc)
                 delay = min(delay * 2, self.settings.reconnect_max)
                 continue
             self.reconnects += 1
+            log.warning("%s: link back after %d attempt(s)", self.settings.port, attempts)
             return
 
 

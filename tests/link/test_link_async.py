@@ -150,7 +150,8 @@ async def test_emergency_stop_overtakes_a_full_window() -> None:
 
 
 @pytest.mark.asyncio
-async def test_the_link_reconnects_with_backoff_when_the_port_comes_back() -> None:
+async def test_the_link_reconnects_with_backoff_when_the_port_comes_back(
+        caplog: pytest.LogCaptureFixture) -> None:
     attempts: list[str] = []
     available = asyncio.Event()
     available.set()
@@ -178,6 +179,11 @@ async def test_the_link_reconnects_with_backoff_when_the_port_comes_back() -> No
         await link.close()
     assert attempts[:3] == ["opened", "refused", "opened"]
     assert reconnects == 1
+    # the journal: the loss with its cause, then the way back
+    logged = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    lost = [i for i, m in enumerate(logged) if m.startswith("sim://: link lost (")]
+    back = [i for i, m in enumerate(logged) if m == "sim://: link back after 2 attempt(s)"]
+    assert len(lost) == len(back) == 1 and lost[0] < back[0]
 
 
 @pytest.mark.asyncio
