@@ -48,9 +48,10 @@ class Failed:
 
 @dataclass(frozen=True)
 class Notice:
-    """Something went wrong on the wire and the link is recovering (a timeout's nudge, a
-    resend): for the operator's log."""
+    """Something went wrong on the wire and the link is recovering: for the operator's log.
+    ``kind`` is ``timeout`` (a nudge) or ``resend``."""
 
+    kind: str
     message: str
 
 

@@ -22,6 +22,7 @@ from typing import Any
 from hostd.link import errors
 from hostd.link.actions import Acked, Action, Answer, Connected, Failed, Notice, Write
 from hostd.link.framing import strip_gcode
+from hostd.link.notices import NoticeLog
 from hostd.link.protocol import Protocol
 from hostd.link.replies import FirmwareInfo, Ok, Position, Reply, Temperatures
 from hostd.link.settings import LinkSettings
@@ -60,6 +61,7 @@ class SerialLink:
         self._lines: deque[tuple[int, asyncio.Future[int]]] = deque()
         self._queries: dict[int, tuple[str, asyncio.Future[Reply]]] = {}
         self._handshake: asyncio.Future[None] | None = None
+        self._notices = NoticeLog(settings.port)
         self._connected = asyncio.Event()
         self._closed = False
         self._auto_reconnect = False
@@ -268,7 +270,7 @@ class SerialLink:
         elif isinstance(action, Failed):
             self._failed(action.error)
         elif isinstance(action, Notice):
-            log.warning("%s: %s", self.settings.port, action.message)
+            self._notices.notice(action, self._now())
 
     def _answer(self, answer: Answer) -> None:
         code, fut = self._queries.pop(answer.line, ("", None))

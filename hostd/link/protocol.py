@@ -618,7 +618,7 @@ class Protocol:
             return
         self._epoch += 1
         self._rewind_target = line
-        self._out.append(Notice(f"firmware asked for line {line} again: resending "
+        self._out.append(Notice("resend", f"firmware asked for line {line} again: resending "
                                 f"{self._sent_max - line + 1} line(s)"))
         self._resend = deque(self._history[n] for n in range(line, self._sent_max + 1))
         self.window.shrink()
@@ -703,9 +703,9 @@ class Protocol:
             return
         self._nudged += 1
         self._progress = now
-        self._out.append(Notice(
+        self._out.append(Notice("timeout", (
             f"no ok for {self.settings.ok_timeout:g} s (line {self._executed + 1} awaited, "
-            f"{self._sent_max} sent): {NUDGE} nudge {self._nudged} of {self.settings.nudges}"))
+            f"{self._sent_max} sent): {NUDGE} nudge {self._nudged} of {self.settings.nudges}")))
         # The firmware has been quiet for a whole timeout: it has answered whatever it was
         # going to answer, or the answers are lost. Its buffer is empty, so the lines in
         # flight no longer hold credit. A line being resent is the tickle it waits for;
