@@ -62,7 +62,9 @@ executed that line (a lost ``ok`` delays it, never advances it). Errors:
 ``LinkLost`` (timeout after the nudge, or port gone: the link reconnects with backoff),
 ``ResendLoop``, ``HistoryExhausted``, ``NotConnected``. After a reset the link handshakes again
 by itself; after a halt, call ``connect()`` again. What the link recovers from by itself (an
-``ok`` timeout and its nudge, a resend) is logged as a warning naming the port and the line.
+``ok`` timeout and its nudge, a resend) is logged as a warning naming the port and the line
+(resends at most once a minute: :mod:`hostd.link.notices`); so are losing the port and
+getting it back.
 
 ``status()`` keys: ``state``, ``connected``, ``port``, ``firmware_name``, ``capabilities``,
 ``temperatures`` (heater → actual/target/power), ``position`` (X, Y, Z, A, C, E),
