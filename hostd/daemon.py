@@ -35,7 +35,7 @@ from hostd.jobs.spool import Spool
 from hostd.jobs.store import JobStore, StoreError
 from hostd.link.errors import LinkError
 from hostd.link.link import SerialLink
-from hostd.link.replies import Reply, Temperatures
+from hostd.link.replies import Reply
 from hostd.link.settings import link_settings_from_config
 from hostd.printer.streamer import StreamSettings
 from hostd.sdnotify import listen_fds, notify, watchdog_interval
@@ -216,24 +216,32 @@ class Daemon:
             self.metrics = None
 
     async def _temperature_monitor(self) -> None:
-        """Publish temperatures, queried with ``M105`` every :data:`TEMPERATURE_INTERVAL`.
+        """Publish the temperatures every :data:`TEMPERATURE_INTERVAL`, keeping an ``M105``
+        query out while the link is up.
 
         While a job prints, the query goes in line after the lines already queued (as
         OctoPrint polls): without it, a board that does not autoreport would show the
         temperatures of the job's start until its end. Its ``ok T:`` also acknowledges every
         line before it, so a plain ``ok`` lost on the wire narrows the window for about two
-        seconds."""
-        while True:
-            temps = self.link.status().get("temperatures") or {}
-            if self.link.connected:
-                with contextlib.suppress(LinkError):
-                    reply = await self.link.query("M105")
-                    if isinstance(reply, Temperatures):
-                        temps = {k: {"actual": h.actual, "target": h.target}
-                                 for k, h in reply.heaters.items()}
-            if temps:
-                self.bus.publish("printer.temperatures", {"heaters": temps})
-            await asyncio.sleep(TEMPERATURE_INTERVAL)  # a report period, not synchronisation
+        seconds. The query is not awaited here: behind an ``M109`` it waits minutes, and the
+        heat-up's own reports (which the link notes, as every reply) are published meanwhile.
+        """
+        query: asyncio.Task[None] | None = None
+        try:
+            while True:
+                if self.link.connected and (query is None or query.done()):
+                    query = asyncio.create_task(self._query_temperatures())
+                temps = self.link.status().get("temperatures") or {}
+                if temps:
+                    self.bus.publish("printer.temperatures", {"heaters": temps})
+                await asyncio.sleep(TEMPERATURE_INTERVAL)  # a report period, not synchronisation
+        finally:
+            if query is not None:
+                query.cancel()
+
+    async def _query_temperatures(self) -> None:
+        with contextlib.suppress(LinkError):  # the link's own state and log tell of it
+            await self.link.query("M105")
 
     async def emergency_stop(self) -> None:
         log.warning("emergency stop requested")

@@ -343,3 +343,28 @@ async def test_temperatures_stay_live_while_a_job_prints(daemon_factory):
         assert status["link"]["temperatures"]["T"]["target"] == 215.0
         await c.close()
     await d.stop()
+
+
+async def test_temperatures_are_published_through_a_heat_up_in_the_job(daemon_factory):
+    """An M109 in the job holds the stream (and a temperature query behind it) while the
+    hotend heats: the heat-up's own reports still reach subscribers as it goes."""
+    d = daemon_factory(sim__realtime=True, sim__time_scale=10.0)  # 20 s time constant: ~2 s
+    await d.start()
+    text = "M104 S200\nM109 S200\nG1 X1 F600\n"
+    async with asyncio.timeout(60):
+        c = await d.rpc()
+        await c.call("events.subscribe", events=["printer.temperatures", "job.state"])
+        job = await c.submit_text("heat.gcode", text)
+        await c.until_state(job["id"], "printing")
+        seen: list[float] = []
+        while True:  # temperatures while the job waits on its M109, until it is done
+            ev = await c.until(lambda e: e["event"] in ("printer.temperatures", "job.state"))
+            if ev["event"] == "job.state":
+                break
+            if ev["heaters"]["T"]["target"] == 200.0:
+                seen.append(ev["heaters"]["T"]["actual"])
+        assert ev["new"] == "completed"
+        await c.close()
+    await d.stop()
+    rising = [t for t in seen if 30.0 < t < 190.0]  # reports from the middle of the heat-up
+    assert len(rising) >= 2 and rising == sorted(rising)
