@@ -3,7 +3,8 @@
 With ``HOSTD_LOOP_CPU`` set to a path prefix, it times (thread CPU) every event-loop callback,
 every ``epoll`` wait, ``os.read`` and ``os.write``, and a few methods of the serial link once
 they are imported; at exit it writes the totals to ``<prefix>.<pid>``, the first line being
-the program's path. Without the variable it does nothing.
+the program's path (marked when the process is a multiprocessing child, whose ``argv`` is
+its parent's). Without the variable it does nothing.
 """
 
 from __future__ import annotations
@@ -79,10 +80,18 @@ def install() -> None:
     atexit.register(dump, time.process_time_ns())
 
 
+def program() -> str:
+    """The program's path; a multiprocessing child (which inherits its parent's ``argv``)
+    is marked as such."""
+    mp = sys.modules.get("multiprocessing")
+    child = mp is not None and mp.parent_process() is not None
+    return f"{sys.argv[0]} (multiprocessing child)" if child else sys.argv[0]
+
+
 def dump(cpu_at_start: int) -> None:
     assert PREFIX is not None
     with open(f"{PREFIX}.{os.getpid()}", "w") as out:
-        out.write(f"{sys.argv[0]}\n{time.process_time_ns() - cpu_at_start}\n")
+        out.write(f"{program()}\n{time.process_time_ns() - cpu_at_start}\n")
         for name, (calls, ns) in totals.items():
             out.write(f"{calls}\t{ns}\t{name}\n")
 
