@@ -114,10 +114,13 @@ class Daemon:
         try:
             self.state_dir.mkdir(parents=True, exist_ok=True)
             self.store = JobStore(self.state_dir / "jobs.db")
-        except (OSError, StoreError) as exc:
+            spool = Spool(self.state_dir / "spool", self.config["daemon.max_upload_bytes"])
+            self.worker = SlicingWorker(self.state_dir / "cache", self.config.values)
+        except StoreError as exc:
             raise DaemonError(str(exc)) from None
-        spool = Spool(self.state_dir / "spool", self.config["daemon.max_upload_bytes"])
-        self.worker = SlicingWorker(self.state_dir / "cache", self.config.values)
+        except OSError as exc:
+            raise DaemonError(f"daemon.state_dir: cannot use {exc.filename or self.state_dir}:"
+                              f" {exc.strerror or exc}") from None
         self._jobs = JobManager(self.store, spool, self.worker, lambda: LinkPort(self.link),
                                 self.bus, stream_settings(self.config))
         self.server = ControlServer(
@@ -174,6 +177,13 @@ class Daemon:
                 return False
         return self._jobs is not None and self._jobs.alive() and not self.stopping.is_set()
 
+    def dead_tasks(self) -> list[str]:
+        """What killed each supervised task that died (for the log), one line each."""
+        tasks = [*self._tasks, *(self._jobs.tasks() if self._jobs is not None else [])]
+        return [f"{t.get_name()}: {t.exception()!r}" if not t.cancelled()
+                else f"{t.get_name()}: cancelled" for t in tasks if t.done()
+                and (t.cancelled() or t.exception() is not None)]
+
     async def _watchdog(self, interval: float) -> None:
         """``WATCHDOG=1`` every ``interval`` s while healthy; runs on the loop, so a blocked or
         dead loop stops the pings too and systemd restarts the daemon."""
@@ -182,7 +192,8 @@ class Daemon:
                 notify("WATCHDOG=1")
                 self._notify_status()  # progress moves without events of its own
             else:
-                log.error("unhealthy: a supervised task died; withholding the watchdog ping")
+                log.error("unhealthy: a supervised task died (%s); withholding the watchdog"
+                          " ping", "; ".join(self.dead_tasks()) or "see above")
             await asyncio.sleep(interval)  # the ping period, not synchronisation
 
     def status_line(self) -> str:

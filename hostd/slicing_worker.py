@@ -2,7 +2,8 @@
 
 One worker process (:class:`hostd.worker_process.WorkerProcess`: spawned, so it shares
 nothing with the daemon's threads) imports the slicer; the daemon itself never imports numpy
-or trimesh. Results are cached on disk by ``sha256(STL) + sha256(profile)``.
+or trimesh. Results are cached on disk by ``sha256(STL) + sha256(profile)``
+(:class:`hostd.slice_cache.SliceCache`).
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hostd.slice_cache import SliceCache
 from hostd.stats import SLICE_BOUNDS, Buckets
 from hostd.worker_process import WorkerDied, WorkerProcess
 
@@ -95,7 +97,7 @@ class SlicingWorker:
 
     def __init__(self, cache_dir: str | Path, values: Mapping[str, Any]) -> None:
         self.cache_dir = Path(cache_dir)
-        self.cache_dir.mkdir(parents=True, exist_ok=True)
+        self.cache = SliceCache(self.cache_dir)
         self.values = dict(values)
         self.profile = profile_of(self.values)
         self.process = WorkerProcess()
@@ -107,11 +109,10 @@ class SlicingWorker:
 
     async def slice(self, stl_path: Path, stl_sha: str) -> SliceOutcome:
         key = cache_key(stl_sha, self.profile)
-        out = self.cache_dir / f"{key}.gcode"
-        meta = self.cache_dir / f"{key}.json"
-        if out.exists() and meta.exists():
+        out = self.cache.gcode_path(key)
+        info = await asyncio.to_thread(self.cache.lookup, key)
+        if info is not None:
             self.cache_hits += 1
-            info = json.loads(await asyncio.to_thread(meta.read_text))
             return SliceOutcome(out, True, 0.0, info)
         started = time.monotonic()
         self.active += 1
@@ -128,7 +129,11 @@ class SlicingWorker:
         duration = time.monotonic() - started
         self.durations.observe(duration)
         self.last_duration_s = duration
-        await asyncio.to_thread(meta.write_text, json.dumps(info))
+        try:
+            info = await asyncio.to_thread(self.cache.store, key, info)
+        except OSError as exc:
+            self.failures += 1
+            raise SliceError(f"cannot keep the sliced G-code: {exc.strerror or exc}") from None
         return SliceOutcome(out, False, duration, info)
 
     def close(self) -> None:

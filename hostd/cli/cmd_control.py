@@ -24,6 +24,8 @@ PART_BYTES = 3 << 16
 SUBMIT_TIMEOUT = 600.0
 """Seconds ``job.submit`` may take: the daemon checks the whole file (parses a G-code)
 before it answers, which for the largest files on a Pi takes far more than a plain call."""
+JOBS_SHOWN = 20
+"""Jobs ``hostctl jobs`` lists unless ``--limit`` says: the newest."""
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
@@ -39,8 +41,10 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_status)
 
-    p = subparsers.add_parser("jobs", help="the job list")
+    p = subparsers.add_parser("jobs", help="the job list (the newest jobs)")
     p.add_argument("--json", action="store_true")
+    p.add_argument("--limit", type=_count, default=JOBS_SHOWN, metavar="N",
+                   help=f"show the newest N jobs (default {JOBS_SHOWN}; 0: all)")
     p.set_defaults(func=cmd_jobs)
 
     for verb, helptext in (("pause", "pause the current job"),
@@ -247,14 +251,25 @@ def cmd_status(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _count(text: str) -> int:
+    """An argparse type: a whole number ≥ 0."""
+    if not text.isdigit():
+        raise argparse.ArgumentTypeError(f"expected a whole number ≥ 0, got {text!r}")
+    return int(text)
+
+
 def cmd_jobs(args: argparse.Namespace) -> int:
     with _client(args) as c:
-        jobs = c.call("job.list")["jobs"]
+        listed = c.call("job.list", limit=args.limit)
+    jobs = listed["jobs"]
     if args.json:
         _emit_json(jobs)
         return EXIT_OK
     if not jobs:
         print("no jobs")
+    older = listed.get("total", len(jobs)) - len(jobs)
+    if older > 0:
+        print(f"({older} older jobs not shown: hostctl jobs --limit 0 lists them all)")
     for j in jobs:
         print(f"{j['id']:>4}  {j['state']:<11} {j['progress'] * 100:5.1f}%  "
               f"line {j['acked_lines']}/{j['total_lines']}  {j['name']}"

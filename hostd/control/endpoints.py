@@ -34,6 +34,8 @@ SAFE_WHILE_PRINTING = frozenset({"M105", "M114", "M115", "M117", "M118", "M119",
                                  "M221", "M106", "M107", "M104", "M140", "M155"})
 """Raw commands accepted while a job prints: queries, messages, fan, overrides, set points."""
 RAW_MAX_LINES = 100
+LIST_LIMIT = 100
+"""Jobs ``job.list`` returns unless asked: the newest (a long history would hold the loop)."""
 
 
 def build_registry(d: Daemon) -> Registry:
@@ -100,7 +102,11 @@ def build_registry(d: Daemon) -> Registry:
 
     async def job_list(ctx: Client, states: list[Any] | None, limit: int) -> dict[str, Any]:
         wanted = None if states is None else [parse_state(str(s)) for s in states]
-        return {"jobs": [d.jobs.job_dict(j) for j in d.jobs.store.list(wanted, limit)]}
+        if limit < 0:
+            raise RpcError(INVALID_PARAMS, f"limit: {limit} is negative (0 lists every job)")
+        store = d.jobs.store
+        return {"jobs": [d.jobs.job_dict(j) for j in store.list(wanted, limit, newest=True)],
+                "total": store.count(wanted)}
 
     async def job_get(ctx: Client, id: int | None) -> dict[str, Any]:
         job = d.jobs.store.get(_current(d, id))
@@ -156,7 +162,8 @@ def build_registry(d: Daemon) -> Registry:
             Param("offset", "int", doc="its byte offset in the file (0 starts one)"),
             doc="send a file in parts, then job.submit without data")
     reg.add("job.list", job_list, Param("states", "list", required=False),
-            Param("limit", "int", required=False, default=1000), doc="jobs, oldest first")
+            Param("limit", "int", required=False, default=LIST_LIMIT),
+            doc="the newest jobs (limit 0: all), oldest first, and how many there are")
     reg.add("job.get", job_get, jid, doc="one job with history and checkpoints")
     reg.add("job.pause", job_pause, jid, wait, doc="pause after the acknowledged line")
     reg.add("job.resume", job_resume, jid,

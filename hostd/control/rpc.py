@@ -226,9 +226,10 @@ class Registry:
                 raise RpcError(METHOD_NOT_FOUND, f"method not found: {method}")
             result = await endpoint.handler(ctx, **endpoint.bind(params))
         except Exception as exc:  # every handler failure becomes a JSON-RPC error
+            error = error_for(exc)  # (an internal error is logged there)
             if isinstance(message, dict) and "id" not in message and _is_request(message):
-                return None
-            return response(req_id, error=error_for(exc))
+                return None  # a notification: nobody to answer
+            return response(req_id, error=error)
         return None if notify else response(req_id, result=result)
 
 

@@ -11,7 +11,7 @@ import asyncio
 import contextlib
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Coroutine
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,7 +21,7 @@ from hostd.control.rpc import PrinterBusy, ShuttingDown
 from hostd.jobs.file_check import FileChecker, parse_upload
 from hostd.jobs.spool import SUFFIX, Spool, SpoolError, Staged, upload_kind
 from hostd.jobs.states import TERMINAL, WAITING, JobState, JobStateError
-from hostd.jobs.store import Job, JobStore, StoreError
+from hostd.jobs.store import Job, JobNotFound, JobStore, StoreError
 from hostd.link.errors import FirmwareReset, LinkError, LinkLost
 from hostd.printer.errors import PrinterError
 from hostd.printer.modal import ModalState
@@ -35,6 +35,7 @@ _TROUBLE = (JobState.FAILED, JobState.INTERRUPTED)  # logged as warnings: the op
 PERSIST_INTERVAL = 0.25  # s between progress writes (also at every layer change)
 EVENT_INTERVAL = 0.2  # s between progress events
 RESUME_SCOPES = ("checkpoint", "subpart", "layer")
+STOPPED = TERMINAL | {JobState.INTERRUPTED}  # states a job.wait returns at
 
 
 @dataclass
@@ -98,12 +99,18 @@ class JobManager:
         self.counts = self.store.counts()
         self._tasks = [asyncio.create_task(self._print_loop(), name="print-loop"),
                        asyncio.create_task(self._slice_loop(), name="slice-loop")]
+        for task in self._tasks:
+            task.add_done_callback(_log_death)
         self._wake_print.set()
         self._wake_slice.set()
 
     def alive(self) -> bool:
         """Whether the print and slice loops are running (for the watchdog)."""
         return bool(self._tasks) and not any(t.done() for t in self._tasks)
+
+    def tasks(self) -> list[asyncio.Task[None]]:
+        """The print and slice loops (read-only use: the watchdog's report)."""
+        return list(self._tasks)
 
     async def stop(self, reason: str = "daemon stopped") -> None:
         """Stop at a safe point: the active job stops feeding after its acked lines and is
@@ -204,17 +211,24 @@ class JobManager:
     async def delete(self, job_id: int) -> Job:
         job = self.store.delete(job_id)
         self.counts[job.state.value] -= 1
+        self._release_waiters(job_id)
         for sha, kind in ((job.upload_sha, job.kind), (job.gcode_sha, "gcode")):
             if sha and self.store.references(sha) == 0:
                 await asyncio.to_thread(self.spool.remove, sha, SUFFIX[kind])
         return job
 
     async def wait_finished(self, job_id: int) -> Job:
-        """Until the job reaches a terminal state (or is interrupted/paused by failure)."""
-        evt = self._done.setdefault(job_id, asyncio.Event())
-        if self.store.get(job_id).state in TERMINAL:
-            return self.store.get(job_id)
-        await evt.wait()
+        """Until the job is completed, failed, cancelled or interrupted (at once if it is).
+
+        Raises
+        ------
+        JobNotFound
+            No such job, or it was deleted while waited for.
+        """
+        job = self.store.get(job_id)
+        if job.state in STOPPED:
+            return job
+        await self._done.setdefault(job_id, asyncio.Event()).wait()
         return self.store.get(job_id)
 
     def _require_active(self, job_id: int, state: JobState) -> Active:
@@ -240,7 +254,10 @@ class JobManager:
             await self._wake_slice.wait()
             self._wake_slice.clear()
             while (job := self._next_stl()) is not None:
-                await self._slice_one(job)
+                try:
+                    await self._slice_one(job)
+                except Exception as exc:  # a bug: this job fails, the queue goes on
+                    self._fail_on_bug(job.id, "slicing", exc)
 
     def _next_stl(self) -> Job | None:
         for job in self.store.list([JobState.QUEUED]):
@@ -281,22 +298,41 @@ class JobManager:
             while True:
                 if self._resume_request is not None:
                     job_id, scope = self._resume_request
-                    await self._run_resumed(job_id, scope)
+                    await self._contained(job_id, self._run_resumed(job_id, scope))
                     continue
                 job = self.store.first(JobState.READY)
                 if job is None:
                     break
-                await self._run(job, 0, None, [])
+                await self._contained(job.id, self._run(job, 0, None, []))
+
+    async def _contained(self, job_id: int, run: Coroutine[Any, Any, None]) -> None:
+        """Run one job; an unexpected error (a bug) fails that job, not the queue."""
+        try:
+            await run
+        except Exception as exc:
+            act = self.active
+            if act is not None and act.job.id == job_id:
+                self._finish_active(act)
+            self._fail_on_bug(job_id, "printing", exc)
+
+    def _fail_on_bug(self, job_id: int, stage: str, exc: Exception) -> None:
+        """Log an unexpected error with its traceback and fail the job it stopped."""
+        log.error("job %d: internal error while %s", job_id, stage, exc_info=exc)
+        with contextlib.suppress(StoreError, JobStateError):
+            if self.store.get(job_id).state not in STOPPED:
+                self._set_state(job_id, JobState.FAILED,
+                                f"internal error while {stage}: {exc!r} (see hostd's log)")
 
     async def _run_resumed(self, job_id: int, scope: str) -> None:
         try:
             job = self.store.get(job_id)
             program = await self._load_program(job)
             start, modal, prelude = await self._resume_point(job, program, scope)
-        except Exception:
+        except (SpoolError, PrinterError) as exc:
+            self._set_state(job_id, JobState.FAILED, f"cannot resume: {exc}")
+            return
+        finally:
             self._resume_request = None
-            raise
-        self._resume_request = None
         log.info("job %d resumes from %s at command %d", job_id, scope, start)
         await self._run(job, start, modal, prelude, program=program,
                         note=f"resumed from {scope} at line {start}")
@@ -333,6 +369,8 @@ class JobManager:
         except (SpoolError, PrinterError) as exc:
             self._set_state(job.id, JobState.FAILED, str(exc))
             return
+        if not self._still(job):
+            return
         port = self.port_factory()
         streamer = Streamer(port, program, self.settings, self._hooks(job.id), start=start,
                             modal=modal, prelude=prelude)
@@ -358,6 +396,18 @@ class JobManager:
                  "interrupted": JobState.INTERRUPTED}.get(outcome, JobState.FAILED)
         with contextlib.suppress(JobStateError):
             self._set_state(job.id, state, reason or outcome)
+
+    def _still(self, job: Job) -> bool:
+        """Whether ``job`` is still in the state it had when the print loop took it up: it
+        may have been cancelled or deleted while its file loaded."""
+        try:
+            now = self.store.get(job.id).state
+        except JobNotFound:
+            log.info("job %d was deleted while it loaded; not printed", job.id)
+            return False
+        if now is not job.state:
+            log.info("job %d became %s while it loaded; not printed", job.id, now)
+        return now is job.state
 
     def _finish_active(self, act: Active) -> None:
         """The job leaves the printer; its last figures stay visible in ``status()``."""
@@ -456,11 +506,16 @@ class JobManager:
         elif self._last is not None and self._last["id"] == job_id:
             self._last["state"] = new.value
         self._emit_state(job, old, reason)
-        if new in TERMINAL or new is JobState.INTERRUPTED:
-            evt = self._done.pop(job_id, None)
+        if new in STOPPED:
+            self._release_waiters(job_id)
+        return job
+
+    def _release_waiters(self, job_id: int) -> None:
+        """Wake whoever waits for the job to stop or pause: it has stopped (or is gone)."""
+        for waiting in (self._done, self._paused_evt):
+            evt = waiting.pop(job_id, None)
             if evt is not None:
                 evt.set()
-        return job
 
     def _emit_state(self, job: Job, old: JobState | None, reason: str) -> None:
         level = logging.WARNING if job.state in _TROUBLE else logging.INFO
@@ -521,6 +576,13 @@ class JobManager:
                 "latest": None if latest is None else dict(latest),
                 "recovered": list(self.recovered), "db_checkpoints": self.checkpoints,
                 "file_checks": self.checker.status()}
+
+
+def _log_death(task: asyncio.Task[None]) -> None:
+    """A job loop ended other than by cancellation: say why, with the traceback."""
+    if not task.cancelled() and task.exception() is not None:
+        log.error("the %s stopped: no more jobs run until hostd restarts", task.get_name(),
+                  exc_info=task.exception())
 
 
 def eta(estimate_s: float | None, ratio: float, elapsed: float, start_ratio: float

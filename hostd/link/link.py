@@ -67,7 +67,6 @@ class SerialLink:
         self._auto_reconnect = False
         self.reconnects = 0
         self.last_error: errors.LinkError | None = None
-        self.failures: list[errors.LinkError] = []
 
     # -- connecting ---------------------------------------------------------------------
 
@@ -289,7 +288,6 @@ class SerialLink:
 
     def _failed(self, error: errors.LinkError) -> None:
         self.last_error = error
-        self.failures.append(error)
         self._connected.clear()
         pending = [f for _, f in self._lines] + [f for _, f in self._queries.values()]
         self._lines.clear()

@@ -64,6 +64,14 @@ async def test_hostctl_verbs_and_exit_codes(tmp_path):
             assert rc == 4 and "give the kind (hostctl print --kind)" in err
             rc, out, _ = await hostctl(d.socket, "print", str(plain), "--kind", "gcode", "--json")
             assert rc == 0 and json.loads(out)["kind"] == "gcode"
+            rc, out, _ = await hostctl(d.socket, "jobs", "--limit", "2")
+            shown = [int(line.split()[0]) for line in out.splitlines()[1:]]
+            assert rc == 0 and shown == [2, 3]  # the newest, oldest first
+            assert out.splitlines()[0].startswith("(1 older jobs not shown")
+            rc, out, _ = await hostctl(d.socket, "jobs", "--limit", "0", "--json")
+            assert rc == 0 and [j["id"] for j in json.loads(out)] == [1, 2, 3]
+            rc, _, err = await hostctl(d.socket, "jobs", "--limit", "-1")
+            assert rc == 2 and "whole number" in err
         finally:
             await d.stop()
 

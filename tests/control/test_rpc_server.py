@@ -2,6 +2,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import os
 import stat
 
@@ -80,6 +81,17 @@ async def test_dispatch_results_and_standard_errors():
             {"jsonrpc": "2.0", "method": "echo", "params": {"text": "b"}},
             {"jsonrpc": "2.0", "id": 2, "method": "nope"}]), None))
         assert [m.get("result") for m in batch] == ["a", None] and len(batch) == 2
+
+
+@pytest.mark.asyncio
+async def test_a_failing_notification_is_logged_though_nobody_is_answered(
+        caplog: pytest.LogCaptureFixture):
+    reg = make_registry()
+    async with asyncio.timeout(5):
+        with caplog.at_level(logging.ERROR, logger="hostd.control.rpc"):
+            assert await reg.dispatch(json.dumps({"jsonrpc": "2.0", "method": "boom"}),
+                                      None) is None
+    assert [str(r.exc_info[1]) for r in caplog.records if r.exc_info] == ["secret detail"]
 
 
 @pytest.mark.asyncio

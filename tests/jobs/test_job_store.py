@@ -131,6 +131,24 @@ def test_counts_and_queue_length(store):
     assert store.queue_length() == 2
 
 
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(0, 12), limit=st.integers(0, 14), cancelled=st.sets(st.integers(1, 12)))
+def test_list_takes_the_oldest_or_newest_jobs_in_id_order(tmp_path_factory, n, limit,
+                                                          cancelled):
+    store = JobStore(tmp_path_factory.mktemp("list") / "jobs.db")
+    for i in range(n):
+        store.add(f"{i}.gcode", "gcode", SHA)
+    for job_id in sorted(c for c in cancelled if c <= n):
+        store.transition(job_id, JobState.CANCELLED)
+    for states in (None, [JobState.CANCELLED], [JobState.QUEUED, JobState.CANCELLED]):
+        ids = [j.id for j in store.list(states, 0)]
+        assert ids == sorted(ids) and store.count(states) == len(ids)
+        assert [j.id for j in store.list(states, limit)] == ids[:limit or None]
+        assert [j.id for j in store.list(states, limit, newest=True)] == (
+            ids[-limit:] if limit else ids)
+    store.close()
+
+
 def test_spool_content_addressed(tmp_path):
     sp = Spool(tmp_path / "spool", max_bytes=2048)
     data = b"G1 X1\n"

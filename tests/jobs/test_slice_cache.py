@@ -1,0 +1,62 @@
+"""The slice cache: an entry is whole or a miss, whatever a crash left on disk."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from hostd.slice_cache import SIZE_KEY, SliceCache
+
+GCODE = b"G90\nG1 X1 Y1 Z0.2\n" * 50
+KEY = "abc-123"
+
+
+def stored(tmp_path: Path) -> SliceCache:
+    cache = SliceCache(tmp_path / "cache")
+    cache.gcode_path(KEY).write_bytes(GCODE)  # as the worker leaves it (renamed into place)
+    info = cache.store(KEY, {"subparts": 2, "layers": 40})
+    assert info[SIZE_KEY] == len(GCODE)
+    return cache
+
+
+def test_a_whole_entry_is_found_with_its_figures(tmp_path: Path):
+    cache = stored(tmp_path)
+    assert cache.lookup(KEY) == {"subparts": 2, "layers": 40, SIZE_KEY: len(GCODE)}
+    assert sorted(p.name for p in cache.root.iterdir()) == [f"{KEY}.gcode", f"{KEY}.json"]
+
+
+def test_no_figures_is_a_miss_even_with_the_gcode(tmp_path: Path):
+    cache = SliceCache(tmp_path / "cache")
+    cache.gcode_path(KEY).write_bytes(GCODE)  # the worker wrote it, the daemon died
+    assert cache.lookup(KEY) is None
+
+
+@pytest.mark.parametrize("damage", ["torn figures", "empty figures", "not an object",
+                                    "short gcode", "empty gcode", "no gcode"])
+def test_a_torn_entry_is_a_miss_and_is_removed(tmp_path: Path, damage: str):
+    cache = stored(tmp_path)
+    meta = cache.root / f"{KEY}.json"
+    gcode = cache.gcode_path(KEY)
+    if damage == "torn figures":
+        meta.write_bytes(meta.read_bytes()[:10])
+    elif damage == "empty figures":
+        meta.write_bytes(b"")
+    elif damage == "not an object":
+        meta.write_text(json.dumps([1, 2]))
+    elif damage == "short gcode":
+        gcode.write_bytes(GCODE[:-7])
+    elif damage == "empty gcode":
+        gcode.write_bytes(b"")
+    else:
+        gcode.unlink()
+    assert cache.lookup(KEY) is None
+    assert list(cache.root.iterdir()) == []
+
+
+def test_no_temporary_file_is_left_behind(tmp_path: Path):
+    cache = stored(tmp_path)
+    cache.store(KEY, {"subparts": 3})
+    assert cache.lookup(KEY) == {"subparts": 3, SIZE_KEY: len(GCODE)}
+    assert not [p for p in cache.root.iterdir() if p.suffix == ".tmp"]
