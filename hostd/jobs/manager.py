@@ -52,6 +52,10 @@ class Active:
     last_event: float = 0.0
     last_layer: tuple[int | None, int | None] = (None, None)
     filament_base: float = 0.0
+    rate_mark: tuple[float, float] | None = None
+    """(elapsed s, progress) where the measured rate starts: the first acknowledged line of a
+    layer, so the start script's heat-up (or a resume's reheat) does not count as slow
+    printing; None before it."""
 
     def elapsed(self, now: float) -> float:
         paused = self.paused_total + (now - self.paused_at if self.paused_at else 0.0)
@@ -426,6 +430,10 @@ class JobManager:
         if act is None:
             return
         now = time.monotonic()
+        if act.rate_mark is None and st.acked > st.start and (
+                st.layer is not None or not act.program.layers):
+            total = st.program.total
+            act.rate_mark = (act.elapsed(now), st.acked / total if total else 1.0)
         layer = (st.subpart, st.layer)
         changed = layer != act.last_layer
         last = st.acked == st.program.total
@@ -530,11 +538,11 @@ class JobManager:
         total = st.program.total
         ratio = st.acked / total if total else 1.0
         elapsed = act.elapsed(now)
+        since, mark = act.rate_mark or (elapsed, ratio)
         return {"job_id": act.job.id, "acked": st.acked, "total": total,
                 "progress": ratio, "subpart": st.subpart, "layer": st.layer,
                 "elapsed_s": elapsed, "eta_s": eta(act.program.estimate.get("time_s"),
-                                                   ratio, elapsed, act.streamer.start / total
-                                                   if total else 0.0),
+                                                   ratio, elapsed - since, mark),
                 "filament_mm": st.modal.extruded, "state": st.state,
                 "a": st.modal.position["A"], "c": st.modal.position["C"]}
 
@@ -587,7 +595,10 @@ def _log_death(task: asyncio.Task[None]) -> None:
 
 def eta(estimate_s: float | None, ratio: float, elapsed: float, start_ratio: float
         ) -> float | None:
-    """Remaining seconds: the slicer's estimate scaled by the measured/estimated rate."""
+    """Remaining seconds: the slicer's estimate scaled by the measured/estimated rate.
+
+    ``elapsed`` is the printing time since progress was ``start_ratio``; until 1 % more is
+    done the estimate stands (None without one)."""
     done = ratio - start_ratio
     if ratio >= 1.0:
         return 0.0

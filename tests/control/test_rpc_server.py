@@ -10,7 +10,7 @@ import pytest
 
 from hostd.control.events import EventBus, EventError
 from hostd.control.rpc import Param, Registry, error_for
-from hostd.control.server import ControlServer
+from hostd.control.server import CLIENT_QUEUE, ControlServer
 from hostd.jobs.states import JobStateError
 from hostd.jobs.store import JobNotFound
 
@@ -189,6 +189,47 @@ async def test_server_oversize_abrupt_disconnect_and_push(tmp_path):
         w.close()
         await server.close()
     assert not path.exists()
+
+
+async def subscribed(path, names: list[str]) -> tuple[asyncio.StreamReader,
+                                                     asyncio.StreamWriter]:
+    r, w = await asyncio.open_unix_connection(str(path))
+    w.write(json.dumps({"jsonrpc": "2.0", "id": 1, "method": "sub_to",
+                        "params": {"names": names}}).encode() + b"\n")
+    await w.drain()
+    assert json.loads(await r.readline())["result"] == "ok"
+    return r, w
+
+
+@pytest.mark.asyncio
+async def test_a_client_that_stops_reading_is_dropped_and_the_others_carry_on(tmp_path):
+    reg = make_registry()
+
+    async def sub_to(ctx, names: list) -> str:
+        ctx.subscribe(names)
+        return "ok"
+
+    reg.add("sub_to", sub_to, Param("names", "list"))
+    bus = EventBus()
+    path = tmp_path / "s.sock"
+    server = ControlServer(path, reg, bus, max_message=4096)
+    async with asyncio.timeout(20):
+        await server.start()
+        stuck_r, stuck_w = await subscribed(path, ["flood"])
+        other_r, other_w = await subscribed(path, ["other"])
+        for n in range(CLIENT_QUEUE + 10):  # no turn of the loop: nothing is written meanwhile
+            bus.publish("flood", {"n": n})
+        bus.publish("other", {"n": -1})
+        flood = (await stuck_r.read()).splitlines()  # what was queued, then the end
+        assert [json.loads(line)["params"]["n"] for line in flood] == list(range(CLIENT_QUEUE))
+        note = json.loads(await other_r.readline())
+        assert note["method"] == "notify_other" and note["params"]["n"] == -1
+        other_w.write(b'{"jsonrpc": "2.0", "id": 2, "method": "echo", "params": ["z"]}\n')
+        await other_w.drain()
+        assert json.loads(await other_r.readline())["result"] == "z"
+        stuck_w.close()
+        other_w.close()
+        await server.close()
 
 
 @pytest.mark.asyncio

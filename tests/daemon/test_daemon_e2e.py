@@ -69,7 +69,8 @@ async def test_pause_resume_then_cancel_mid_print(daemon_factory):
         assert got["modal"]["absolute"] is True and got["modal"]["e_absolute"] is False
         assert got["modal"]["hotend"] == 210.0
         # raw G-code is accepted while paused, refused (except the safe set) while printing
-        await c.call("printer.gcode", script="M114")
+        jog = await c.call("printer.gcode", script="G91\nG1 Z2 F600\nG90")  # none is safe
+        assert jog["commands"] == ["G91", "G1 Z2 F600", "G90"]  # while printing
         await c.call("job.resume", id=job["id"])
         await c.until(lambda e: e["event"] == "job.progress" and e["acked"] > n + 100)
         with pytest.raises(RpcCallError) as err:
@@ -364,7 +365,11 @@ async def test_temperatures_are_published_through_a_heat_up_in_the_job(daemon_fa
             if ev["heaters"]["T"]["target"] == 200.0:
                 seen.append(ev["heaters"]["T"]["actual"])
         assert ev["new"] == "completed"
+        cmds = [cmd for _, cmd in (await c.call("sim.log"))["commands"]]
         await c.close()
     await d.stop()
     rising = [t for t in seen if 30.0 < t < 190.0]  # reports from the middle of the heat-up
     assert len(rising) >= 2 and rising == sorted(rising)
+    # one temperature query at a time: the one held behind the M109, then the end's barrier
+    # (queries sent every 2 s through a heat-up of several would pile up behind it)
+    assert cmds[cmds.index("M109 S200") + 1:].count("M105") <= 2

@@ -1,7 +1,9 @@
-"""hostd refuses a state directory it cannot use with one line naming it, and exits 1."""
+"""hostd at start and under its watchdog: a state directory it cannot use is one line naming
+it (exit 1); a dead task withholds the watchdog ping, and the log names what killed it."""
 
 from __future__ import annotations
 
+import asyncio
 import subprocess
 import sys
 from pathlib import Path
@@ -31,3 +33,48 @@ def test_a_file_where_a_state_directory_belongs_is_a_one_line_error(
     assert len(errors) == 1 and "daemon.state_dir" in errors[0]
     assert str(state / blocked) in errors[0]
     assert not (tmp_path / "hostd.sock").exists()
+
+
+class Loops:
+    """Stands in for the job manager: its loops alive or not."""
+
+    def __init__(self, tasks: list[asyncio.Task[None]]) -> None:
+        self._tasks = tasks
+
+    def alive(self) -> bool:
+        return not any(t.done() for t in self._tasks)
+
+    def tasks(self) -> list[asyncio.Task[None]]:
+        return self._tasks
+
+
+async def _fails() -> None:
+    raise RuntimeError("loop broke")
+
+
+async def _returns() -> None:
+    return None
+
+
+@pytest.mark.asyncio
+@pytest.mark.timeout(30)
+async def test_the_watchdog_is_withheld_naming_what_killed_a_task(tmp_path: Path):
+    from hostd.config.loader import defaults
+    from hostd.daemon import Daemon
+
+    daemon = Daemon(defaults())
+    forever = asyncio.Event()
+    running = asyncio.create_task(forever.wait(), name="temps")
+    linked = asyncio.create_task(_returns(), name="link")  # connected: its work is done
+    daemon._tasks = [running, linked]
+    daemon._jobs = Loops([asyncio.create_task(forever.wait(), name="print-loop")])  # type: ignore[assignment]
+    await asyncio.gather(linked)
+    assert daemon.healthy() and daemon.dead_tasks() == []
+    broken = asyncio.create_task(_fails(), name="slice-loop")
+    await asyncio.gather(broken, return_exceptions=True)
+    daemon._jobs = Loops([broken])  # type: ignore[assignment]
+    assert not daemon.healthy()
+    assert daemon.dead_tasks() == ["slice-loop: RuntimeError('loop broke')"]
+    running.cancel()
+    await asyncio.gather(running, return_exceptions=True)
+    assert daemon.dead_tasks() == ["temps: cancelled", "slice-loop: RuntimeError('loop broke')"]

@@ -195,3 +195,25 @@ async def test_a_waiter_learns_that_its_job_was_deleted(tmp_path: Path):
         with pytest.raises(JobNotFound):
             await waiter
     assert mgr._done == {}
+
+
+@pytest.mark.asyncio
+@pytest.mark.timeout(30)
+async def test_deleting_a_job_removes_its_file_once_no_other_job_uses_it(tmp_path: Path):
+    mgr = GatedManager(tmp_path, [])
+    first, second = add_job(mgr, "x"), add_job(mgr, "x")  # the same file twice
+    other = add_job(mgr, "good")
+    assert first.gcode_sha == second.gcode_sha != other.gcode_sha
+
+    def kept(job: Job) -> bool:
+        assert job.gcode_sha is not None
+        return mgr.spool.path(job.gcode_sha, ".gcode", must_exist=False).exists()
+
+    async with asyncio.timeout(5):
+        await mgr.cancel(first.id)
+        await mgr.delete(first.id)
+        assert kept(second) and kept(other)
+        await mgr.cancel(second.id)
+        await mgr.delete(second.id)
+    assert not kept(second) and kept(other)
+    assert mgr.status()["counts"]["cancelled"] == 0
