@@ -10,7 +10,9 @@ every later output carries.
 
 from __future__ import annotations
 
+import re
 import struct
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -77,6 +79,9 @@ def load_mesh(path: str | Path, build_volume: np.ndarray | None = None,
     """
     name = str(path)
     mesh = repair(read_stl(path), name)
+    bodies = separate_bodies(mesh)
+    if bodies:
+        raise MeshError(f"{name}: {bodies}")
     check_size(mesh, name, None, min_size)
     placed, placement = place_on_platform(mesh, name)
     check_size(placed, name, build_volume, min_size)
@@ -92,12 +97,16 @@ def read_stl(path: str | Path) -> trimesh.Trimesh:
         raise MeshError(f"{name}: cannot read: {exc.strerror or exc}") from None
     if not data.strip():
         raise MeshError(f"{name}: empty file")
-    _check_binary_length(data, name)
+    data = _ascii_text(data) if _is_ascii_stl(data) else _binary_body(data, name)
     try:
-        mesh = trimesh.load_mesh(trimesh.util.wrap_as_stream(data), file_type="stl",
-                                 process=False)
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")  # non-finite input is refused below, in one line
+            mesh = trimesh.load_mesh(trimesh.util.wrap_as_stream(data), file_type="stl",
+                                     process=False)
     except _PARSE_ERRORS as exc:
-        raise MeshError(f"{name}: not a readable STL file ({type(exc).__name__})") from None
+        where = _first_bad_line(data) if _is_ascii_stl(data) else None
+        raise MeshError(f"{name}: not a readable STL file ("
+                        f"{where or type(exc).__name__})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise MeshError(f"{name}: no triangles (empty or truncated STL)")
     if not np.isfinite(mesh.vertices).all():
@@ -106,10 +115,48 @@ def read_stl(path: str | Path) -> trimesh.Trimesh:
     return mesh
 
 
-def _check_binary_length(data: bytes, name: str) -> None:
-    """Refuse a binary STL whose length disagrees with its triangle count."""
-    if data[:5].lower() == b"solid" and b"facet" in data[:2048]:
-        return  # ASCII
+def _is_ascii_stl(data: bytes) -> bool:
+    """ASCII STL: text from ``solid`` on (a binary header may also begin with "solid", but
+    then NUL bytes or its 50-byte records follow, not ``facet`` or ``endsolid``)."""
+    head = data.lstrip()[:2048]
+    return head[:5].lower() == b"solid" and b"\0" not in head and (
+        b"facet" in head or b"endsolid" in data[-2048:].lower())
+
+
+def _ascii_text(data: bytes) -> bytes:
+    """The file with every byte outside ASCII as ``?``: STL keywords and numbers are ASCII,
+    and names in another encoding (``solid café`` in Latin-1) must not stop the parse."""
+    return data.decode("latin-1").encode("ascii", "replace")
+
+
+_STL_LINE = re.compile(rb"\s*(solid\b.*|endsolid\b.*|facet\s+normal(\s+\S+){3}|outer\s+loop"
+                       rb"|vertex(\s+\S+){3}|endloop|endfacet|)\s*", re.IGNORECASE)
+_NUMBERS = re.compile(rb"\s*(facet\s+normal|vertex)\s+(.*)", re.IGNORECASE)
+
+
+def _first_bad_line(data: bytes) -> str | None:
+    """``"line N: <text>"`` for the first line of an ASCII STL that is not STL, or None."""
+    for number, line in enumerate(data.splitlines(), 1):
+        numbers = _NUMBERS.fullmatch(line)
+        if _STL_LINE.fullmatch(line) and (numbers is None or _numbers_ok(numbers[2])):
+            continue
+        text = line.strip().decode("ascii", "replace")
+        return f"line {number}: {text[:60]!r}"
+    return None
+
+
+def _numbers_ok(text: bytes) -> bool:
+    try:
+        return len([float(x) for x in text.split()]) == 3
+    except ValueError:
+        return False
+
+
+def _binary_body(data: bytes, name: str) -> bytes:
+    """A binary STL's header and records: refused when shorter than its triangle count
+    says, trailing bytes past it (some exporters pad the file) dropped."""
+    if _looks_like_text(data):
+        raise MeshError(f"{name}: not an STL file (text that does not begin with 'solid')")
     if len(data) < 84:
         raise MeshError(f"{name}: truncated STL ({len(data)} bytes, no binary header)")
     count = struct.unpack("<I", data[80:84])[0]
@@ -117,6 +164,13 @@ def _check_binary_length(data: bytes, name: str) -> None:
     if len(data) < expected:
         raise MeshError(f"{name}: truncated binary STL: header declares {count} triangles "
                         f"({expected} bytes) but the file has {len(data)} bytes")
+    return data[:expected]
+
+
+def _looks_like_text(data: bytes) -> bool:
+    """Printable text throughout its first kilobytes (a binary STL's records hold floats)."""
+    head = data[:4096]
+    return not head.translate(None, bytes(range(32, 127)) + b"\t\r\n")
 
 
 def repair(mesh: trimesh.Trimesh, name: str = "<mesh>") -> trimesh.Trimesh:
@@ -250,9 +304,19 @@ def separate_bodies(mesh: trimesh.Trimesh) -> str | None:
     count = int(labels.max()) + 1
     if count == 1:
         return None
+    signed = np.bincount(labels, weights=_face_volumes(mesh), minlength=count)
+    if (signed < 0).any():  # an inner shell facing inward: a closed void inside the part
+        void = int(np.argmin(signed))
+        return (f"the part has an internal cavity ({-signed[void]:.3g} mm³ near "
+                f"[{_centre(mesh, labels == void)}] mm); fill it or open it to the outside")
     small = labels == count - 1
-    volume = abs(float(_face_volumes(mesh)[small].sum()))
-    centre = np.round(mesh.triangles_center[small].mean(axis=0), 1) + 0.0  # no "-0.0"
-    where = ", ".join(f"{x:.1f}" for x in centre)
+    volume = abs(float(signed[count - 1]))
     return (f"the part is {count} separate bodies (the smallest, {volume:.3g} mm³ near "
-            f"[{where}] mm, is not joined to the rest); one connected solid is needed")
+            f"[{_centre(mesh, small)}] mm, is not joined to the rest); one connected solid "
+            "is needed")
+
+
+def _centre(mesh: trimesh.Trimesh, faces: np.ndarray) -> str:
+    """The mean of the centres of the faces selected by ``faces``, (n,) bool, as text."""
+    centre = np.round(mesh.triangles_center[faces].mean(axis=0), 1) + 0.0  # no "-0.0"
+    return ", ".join(f"{x:.1f}" for x in centre)

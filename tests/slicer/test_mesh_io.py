@@ -100,3 +100,71 @@ def test_too_small(tmp_path):
 
 def test_missing_file(tmp_path):
     assert "cannot read" in _refused(tmp_path / "nope.stl")
+
+
+def test_trailing_bytes_after_a_binary_stl_are_ignored(tmp_path, pipe_bytes):
+    whole, _ = load_mesh(_write(tmp_path, "b.stl", pipe_bytes))
+    padded, _ = load_mesh(_write(tmp_path, "p.stl", pipe_bytes + b"\0\0padding"))
+    assert np.array_equal(whole.vertices, padded.vertices)
+    assert np.array_equal(whole.faces, padded.faces)
+
+
+def test_an_ascii_name_in_another_encoding_loads(tmp_path):
+    text = samples.cylinder().export(file_type="stl_ascii")
+    latin = ("solid café\n" + text.split("\n", 1)[1]).encode("latin-1")
+    utf8, _ = load_mesh(_write(tmp_path, "u.stl", text.encode()))
+    named, _ = load_mesh(_write(tmp_path, "l.stl", latin))
+    assert named.volume == pytest.approx(utf8.volume, rel=1e-9)
+
+
+def test_an_ascii_stl_with_no_facets_has_no_triangles(tmp_path):
+    assert "no triangles" in _refused(_write(tmp_path, "e.stl", b"solid x\nendsolid x\n"))
+
+
+@pytest.mark.parametrize(("nth", "bad"), [(0, "vertx 1 2 3"), (9, "vertex 1.0 abc 3.0"),
+                                          (40, "vertex 1 2")])
+def test_a_syntax_error_names_its_line(tmp_path, nth, bad):
+    lines = samples.cylinder().export(file_type="stl_ascii").splitlines()
+    line = [i for i, text in enumerate(lines, 1) if "vertex" in text][nth]
+    lines[line - 1] = "      " + bad
+    msg = _refused(_write(tmp_path, "s.stl", "\n".join(lines).encode()))
+    assert f"(line {line}: {bad!r})" in msg
+
+
+def test_text_that_is_not_stl_is_named_so(tmp_path):
+    obj = b"v 1 2 3\nv 2 3 4\nv 3 4 5\nf 1 2 3\n" * 20
+    assert "not an STL file" in _refused(_write(tmp_path, "obj.stl", obj))
+
+
+def test_infinite_coordinates_are_one_line_and_no_numpy_warning(tmp_path, recwarn):
+    mesh = samples.cylinder()
+    vertices = mesh.vertices.copy()
+    vertices[3] = [np.inf, 0.0, -np.inf]
+    path = tmp_path / "inf.stl"
+    trimesh.Trimesh(vertices, mesh.faces, process=False).export(path)
+    recwarn.clear()  # the export's own
+    assert "infinite" in _refused(path)
+    assert [w for w in recwarn if issubclass(w.category, RuntimeWarning)] == []
+
+
+def _manifold_stl(tmp_path, name, solid):
+    out = solid.to_mesh()
+    path = tmp_path / name
+    trimesh.Trimesh(out.vert_properties[:, :3], out.tri_verts).export(path)
+    return path
+
+
+def test_an_internal_cavity_is_named_as_such_in_the_files_coordinates(tmp_path):
+    m3 = pytest.importorskip("manifold3d")
+    cube = m3.Manifold.cube([20.0, 20.0, 20.0], True)
+    hollow = (cube - m3.Manifold.cube([10.0, 10.0, 10.0], True)).translate([40.0, 7.0, 10.0])
+    msg = _refused(_manifold_stl(tmp_path, "cavity.stl", hollow))
+    assert "internal cavity (1e+03 mm³ near [40.0, 7.0, 10.0] mm)" in msg
+
+
+def test_separate_bodies_are_located_in_the_files_coordinates(tmp_path):
+    m3 = pytest.importorskip("manifold3d")
+    two = m3.Manifold.cube([10.0, 10.0, 10.0]) + m3.Manifold.cube([4.0, 4.0, 4.0]).translate(
+        [30.0, 0.0, 0.0])
+    msg = _refused(_manifold_stl(tmp_path, "two.stl", two))
+    assert "2 separate bodies (the smallest, 64 mm³ near [32.0, 2.0, 2.0] mm" in msg
