@@ -37,6 +37,7 @@ from hostd.link.errors import LinkError
 from hostd.link.link import SerialLink
 from hostd.link.replies import Reply
 from hostd.link.settings import link_settings_from_config
+from hostd.printer.envelope import envelope_from_config
 from hostd.printer.streamer import StreamSettings
 from hostd.sdnotify import listen_fds, notify, watchdog_interval
 from hostd.sim.settings import sim_settings_from_config
@@ -122,7 +123,8 @@ class Daemon:
             raise DaemonError(f"daemon.state_dir: cannot use {exc.filename or self.state_dir}:"
                               f" {exc.strerror or exc}") from None
         self._jobs = JobManager(self.store, spool, self.worker, lambda: LinkPort(self.link),
-                                self.bus, stream_settings(self.config))
+                                self.bus, stream_settings(self.config),
+                                envelope_from_config(self.config.values))
         self.server = ControlServer(
             self.config["daemon.socket"], build_registry(self), self.bus,
             max_message=self.config["daemon.max_upload_bytes"] * 4 // 3 + MESSAGE_OVERHEAD)

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from hostd.jobs.spool import SpoolError, check_gcode, check_stl
+from hostd.printer.envelope import Envelope
 from hostd.printer.errors import ProgramError
 from hostd.printer.program import Program, parse_program
 from hostd.worker_process import WorkerDied, WorkerProcess
@@ -44,14 +45,21 @@ def parse_upload(data: bytes, name: str) -> Program:
     return program
 
 
-def check_file(path: str, kind: str, name: str) -> GcodeSummary | None:
+def check_file(path: str, kind: str, name: str, envelope: Envelope | None = None
+               ) -> GcodeSummary | None:
     """Runs in the worker: check the file at ``path`` as ``kind`` (``stl``: structure only,
-    the slicer parses it; ``gcode``: parsed whole, and summarized)."""
+    the slicer parses it; ``gcode``: parsed whole, fitted to the printer's ``envelope``,
+    and summarized)."""
     data = Path(path).read_bytes()
     if kind == "stl":
         check_stl(data, name)
         return None
     program = parse_upload(data, name)
+    if envelope is not None:
+        try:
+            envelope.check(program)
+        except ProgramError as exc:
+            raise SpoolError(f"{name}: {exc}") from None
     return GcodeSummary(program.total, program.estimate, len(program.subparts),
                         len(program.layers), len(program.transitions))
 
@@ -59,7 +67,8 @@ def check_file(path: str, kind: str, name: str) -> GcodeSummary | None:
 class FileChecker:
     """Checks files in a worker process, started by the first check."""
 
-    def __init__(self) -> None:
+    def __init__(self, envelope: Envelope | None = None) -> None:
+        self.envelope = envelope
         self.process = WorkerProcess()
         self.checks = 0
         self.refused = 0
@@ -69,7 +78,7 @@ class FileChecker:
         is refused or the worker died (it is started afresh for the next check)."""
         self.checks += 1
         try:
-            return await self.process.run(check_file, str(path), kind, name)
+            return await self.process.run(check_file, str(path), kind, name, self.envelope)
         except WorkerDied as exc:
             self.refused += 1
             raise SpoolError(f"{name}: not checked: {exc}") from None

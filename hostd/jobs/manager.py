@@ -23,6 +23,7 @@ from hostd.jobs.spool import SUFFIX, Spool, SpoolError, Staged, upload_kind
 from hostd.jobs.states import TERMINAL, WAITING, JobState, JobStateError
 from hostd.jobs.store import Job, JobNotFound, JobStore, StoreError
 from hostd.link.errors import FirmwareReset, LinkError, LinkLost
+from hostd.printer.envelope import Envelope
 from hostd.printer.errors import PrinterError
 from hostd.printer.modal import ModalState
 from hostd.printer.program import Program, Transition
@@ -67,11 +68,11 @@ class JobManager:
 
     def __init__(self, store: JobStore, spool: Spool, worker: SlicingWorker | None,
                  port_factory: Callable[[], Port], bus: EventBus,
-                 settings: StreamSettings) -> None:
+                 settings: StreamSettings, envelope: Envelope | None = None) -> None:
         self.store = store
         self.spool = spool
         self.worker = worker
-        self.checker = FileChecker()  # whole-file checks, off the event loop's GIL
+        self.checker = FileChecker(envelope)  # whole-file checks, off the loop's GIL
         self.port_factory = port_factory
         self.bus = bus
         self.settings = settings

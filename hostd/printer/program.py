@@ -56,6 +56,7 @@ class Program:
     parents: dict[int, int | None] = field(default_factory=dict)
     transitions: list[Transition] = field(default_factory=list)
     estimate: dict[str, float] = field(default_factory=dict)
+    kinematics: dict[str, Any] = field(default_factory=dict)  # ;HOSTD_KINEMATICS, if any
     _starts: list[int] = field(default_factory=list, repr=False, compare=False)
     _by_start: dict[int, Transition] = field(default_factory=dict, repr=False, compare=False)
 
@@ -158,6 +159,8 @@ def _marker(prog: Program, text: str, lineno: int, open_tr: dict[str, Any] | Non
     elif name == "LAYER":
         subpart = _int(data, "subpart", lineno) if "subpart" in data else subpart
         prog.layers.append(LayerMark(index, subpart, _int(data, "index", lineno)))
+    elif name == "KINEMATICS":
+        prog.kinematics = data
     elif name == "ESTIMATE":
         prog.estimate = {k: float(v) for k, v in data.items()
                          if isinstance(v, int | float) and math.isfinite(v)}

@@ -128,6 +128,12 @@ async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
             "big.gcode": (b"G1 X1\n" * 40_000, "exceeds the limit"),
             "binary.gcode": (b"\xff\xfe\x00G1", "not UTF-8"),
             "part.obj": (b"v 1 2 3", "cannot tell the kind"),
+            "far.gcode": (b"G28\nG90\nG1 X10 Y10\nG1 X900\n",
+                          "far.gcode: line 4: X 900 is outside the machine's travel [0, 500]"
+                          " (machine.x_range)"),
+            "other.gcode": (b';HOSTD_KINEMATICS {"table_origin": [250, 250, 120]}\nG28\n',
+                            "sliced for another machine: table_origin [250, 250, 120] in the"
+                            " file's HOSTD_KINEMATICS, [250, 250, 100] in this printer's"),
         }
         for name, (data, reason) in bad.items():
             with pytest.raises(RpcCallError) as err:
