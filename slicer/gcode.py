@@ -22,6 +22,7 @@ import numpy as np
 from kinematics.linearize import linearize_move
 from kinematics.machine import MachineGeometry
 from kinematics.transform import inverse, table_rotation
+from slicer.envelope import DEFAULT_TRAVEL
 from slicer.estimate import Estimate, MotionLimits, estimate_program
 from slicer.extrusions import Extrusions, joint_poses
 from slicer.gcode_program import AC_DECIMALS, XYZ_DECIMALS, MoveWords, Program
@@ -40,11 +41,16 @@ class GcodeError(ValueError):
 
 @dataclass(frozen=True)
 class MachineSetup:
-    """What the writer needs to know about the machine beyond the kinematics."""
+    """What the writer needs to know about the machine beyond the kinematics.
+
+    ``travel`` is [min, max] of machine X, Y and Z (``machine.x_range`` ...), mm: the writer
+    does not use it, :mod:`slicer.envelope` checks the program against it.
+    """
 
     geometry: MachineGeometry = field(default_factory=MachineGeometry)
     head: Printhead = field(default_factory=Printhead)
     platform_radius: float = 150.0
+    travel: tuple[tuple[float, float], ...] = DEFAULT_TRAVEL
 
 
 @dataclass
@@ -211,11 +217,20 @@ class _Writer:
         self.prog.line(";HOSTD_TRANSITION_END")
 
     def end_safe_z(self) -> float:
-        if np.isnan(self.prog.pose).any():
-            return self.s.safe_height
+        """Machine Z that clears the part and the platform while the table turns from the
+        last pose back to A = C = 0 (and is not below the nozzle already)."""
+        if np.isnan(self.prog.pose).any():  # nothing moved: nothing printed either
+            return start_safe_z(self.s, self.m)
         a0, c0 = float(self.prog.pose[3]), float(self.prog.pose[4])
         z = safe_height_z(self.hull, self.rim, a0, c0, 0.0, 0.0, self.g, self.s.safe_height)
         return max(z, float(self.prog.pose[2]))
+
+
+def start_safe_z(settings: ProcessSettings, machine: MachineSetup) -> float:
+    """``{safe_z}`` of the start script: ``safe_height`` above the empty platform at
+    A = C = 0 (machine Z, mm), the table surface standing in for the part not printed yet."""
+    rim = platform_rim(machine.platform_radius)
+    return safe_height_z(rim, rim, 0.0, 0.0, 0.0, 0.0, machine.geometry, settings.safe_height)
 
 
 def _json(obj: object) -> str:
@@ -281,11 +296,14 @@ def build_program(plan: PrintPlan, settings: ProcessSettings,
     Returns
     -------
     program, transition records, end safe Z
+        ``{safe_z}`` of the start script is :func:`start_safe_z`, of the end script the end
+        safe Z (machine Z, mm).
     """
     machine = machine or MachineSetup()
     w = _Writer(plan, settings, machine)
     w.prog.line("M83\nG90")
-    w.prog.line(_custom(settings.start_gcode, settings, safe_z=0.0))
+    w.prog.line(_custom(settings.start_gcode, settings,
+                        safe_z=round(start_safe_z(settings, machine), 3)))
     w.prog.line(f"M83\nG90\nM106 S{int(settings.fan_speed)}")
     prev: int | None = None
     for sp in plan.subparts:
@@ -313,6 +331,13 @@ class Draft:
     machine: MachineSetup
     program: Program
     transitions: list[dict[str, object]]
+    end_safe_z: float = math.nan
+
+    def script_safe_z(self) -> dict[str, float]:
+        """``{safe_z}`` (machine Z, mm) of the start and end scripts that use it."""
+        used = {"start": (self.settings.start_gcode, start_safe_z(self.settings, self.machine)),
+                "end": (self.settings.end_gcode, self.end_safe_z)}
+        return {k: round(z, 3) for k, (text, z) in used.items() if "safe_z" in text}
 
     def words(self) -> Iterator[str | MoveWords]:
         """Raw lines and numeric move blocks (for :func:`slicer.gcode_reader.parse_words`),
@@ -337,9 +362,9 @@ def draft(plan: PrintPlan, settings: ProcessSettings,
     """The program of the whole file (:func:`build_program`), its word table computed
     (so two threads may read it)."""
     machine = machine or MachineSetup()
-    prog, transitions, _ = build_program(plan, settings, machine)
+    prog, transitions, safe_z = build_program(plan, settings, machine)
     prog.table()
-    return Draft(plan, settings, machine, prog, transitions)
+    return Draft(plan, settings, machine, prog, transitions, safe_z)
 
 
 def generate(plan: PrintPlan, settings: ProcessSettings,
@@ -362,4 +387,4 @@ def write_gcode(path: str | FsPath, lines: Iterable[str]) -> None:
 
 __all__: Sequence[str] = ("Draft", "GcodeError", "GcodeResult", "MachineSetup",
                           "build_program", "draft", "filament_area", "gcode_lines", "generate",
-                          "header_lines", "path_extrusion", "write_gcode")
+                          "header_lines", "path_extrusion", "start_safe_z", "write_gcode")

@@ -2,7 +2,9 @@
 
 Used by ``hostctl slice`` and the daemon's slicing worker: a plain function with a plain-data,
 picklable result. A file whose replay finds a head collision is refused
-(:class:`CollisionError`), never returned.
+(:class:`CollisionError`), never returned; so is a part wider than the platform, a program
+that prints nothing or moves an axis beyond its travel (:class:`~slicer.envelope.EnvelopeError`,
+a :class:`~slicer.mesh_io.MeshError`: bad input), checked by :mod:`slicer.envelope`.
 """
 
 from __future__ import annotations
@@ -16,9 +18,12 @@ from typing import TypeVar
 
 import numpy as np
 import trimesh
+from numpy.typing import ArrayLike
 
 from kinematics.machine import MachineGeometry
+from slicer import envelope
 from slicer.gcode import Draft, MachineSetup, draft
+from slicer.gcode_program import E
 from slicer.gcode_reader import parse_words
 from slicer.hugepages import small_pages
 from slicer.plan import PrintPlan
@@ -119,7 +124,8 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
                 geometry: MachineGeometry, head: Printhead | None = None,
                 decompose_settings: object | None = None, platform_radius: float = 150.0,
                 planar: bool = False, build_volume: np.ndarray | None = None,
-                check: bool = True, keep_plan: bool = False) -> SliceResult:
+                check: bool = True, keep_plan: bool = False,
+                travel: ArrayLike = envelope.DEFAULT_TRAVEL) -> SliceResult:
     """Slice a part to checked G-code.
 
     Parameters
@@ -136,17 +142,25 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         Run the replay check (and refuse collisions).
     keep_plan : bool
         Keep the PrintPlan in the result (for previews).
+    travel : (3, 2) float
+        [min, max] of machine X, Y, Z (``machine.x_range`` ...), mm.
 
     Raises
     ------
     SliceError, CollisionError
         And the loaders' MeshError / DecompositionError / SlicingError, all one line.
+    slicer.envelope.EnvelopeError
+        (a MeshError) The part is wider than the platform, nothing is printed, or a move
+        leaves the travel; raised before any G-code is returned.
     """
     t0 = time.perf_counter()
     head = head or Printhead.default()
     timings: dict[str, float] = {}
     with small_pages(), ThreadPoolExecutor(1, "replay-index") as early:
         mesh, placement = _load(mesh_or_path, settings.nozzle_diameter, build_volume)
+        name = _name(mesh_or_path)
+        envelope.refuse(name, envelope.footprint_message(
+            envelope.footprint_radius(mesh.vertices), platform_radius))
         timings["load"] = time.perf_counter() - t0
         # the replay's model index needs only the placed mesh: built on the second core
         # while the decomposition and the layers (mostly one thread) are computed
@@ -157,8 +171,50 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         timings["plan"] = time.perf_counter() - t1
         if index is not None:  # and its coverage grid while the G-code is written
             index = early.submit(_with_grid, index, settings)
-        return _finish(mesh, plan, settings, MachineSetup(geometry, head, platform_radius),
-                       index, timings, t0, keep_plan)
+        travel_ranges = tuple((float(lo), float(hi)) for lo, hi in np.reshape(travel, (3, 2)))
+        setup = MachineSetup(geometry, head, platform_radius, travel_ranges)
+        return _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name)
+
+
+def _name(mesh_or_path: trimesh.Trimesh | str | Path) -> str:
+    """How errors name the part (as the loader does)."""
+    return str(mesh_or_path) if isinstance(mesh_or_path, str | Path) else "<mesh>"
+
+
+def check_envelope(moves: Draft, name: str = "<mesh>") -> None:
+    """Refuse a program that prints nothing or leaves the machine's travel.
+
+    Raises
+    ------
+    slicer.envelope.EnvelopeError
+        One line: ``"<name>: nothing to print: ..."`` or ``"<name>: machine Z reaches ...
+        outside machine.z_range [lo, hi] (sub-part k, layer i)"``.
+    """
+    tab = moves.program.table()
+    xyz = tab.vals[:, :3]
+    if envelope.extruded_length(xyz, tab.rows[:, E]) <= 0.0:
+        layers = sum(len(sp.layers) for sp in moves.plan.subparts)
+        envelope.refuse(name, envelope.nothing_to_print_message(moves.settings.line_width,
+                                                                 layers))
+    envelope.refuse(name, _travel_message(moves, xyz, tab.at, tab.texts))
+
+
+def _travel_message(moves: Draft, xyz: np.ndarray, at: np.ndarray,
+                    texts: list[str]) -> str | None:
+    """Why the moves ``xyz`` (n, 3) or the scripts' ``{safe_z}`` leave the travel, if so."""
+    travel = moves.machine.travel
+    out = envelope.travel_violation(xyz, travel)
+    if out is not None:
+        where = envelope.place_of(out.row, at, texts)
+        if out.axis == 2 and where.startswith("transition"):
+            where += (f": the lift clears the part by process.safe_height "
+                      f"{moves.settings.safe_height:g} mm")
+        return out.message(where)
+    for script, z in moves.script_safe_z().items():
+        out = envelope.travel_violation([[np.nan, np.nan, z]], travel)
+        if out is not None:
+            return out.message(f"{{safe_z}} of the {script} G-code")
+    return None
 
 
 def _with_grid(index: Future[ModelIndex], settings: ProcessSettings) -> ModelIndex:
@@ -170,14 +226,15 @@ def _with_grid(index: Future[ModelIndex], settings: ProcessSettings) -> ModelInd
 
 def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
             setup: MachineSetup, index: Future[ModelIndex] | None, timings: dict[str, float],
-            t0: float, keep_plan: bool) -> SliceResult:
-    """G-code for ``plan`` and, when ``index`` is given, its replay check.
+            t0: float, keep_plan: bool, name: str = "<mesh>") -> SliceResult:
+    """G-code for ``plan``, its envelope check and, when ``index`` is given, its replay check.
 
     The replay reads the program's numbers, so the estimate and the text are computed on a
     thread of their own meanwhile (mostly numpy: the replay loses little of the GIL to it).
     """
     t1 = time.perf_counter()
     moves = draft(plan, settings, setup)
+    check_envelope(moves, name)
     timings["gcode"] = time.perf_counter() - t1
     report: dict[str, object] = {}
     if index is None:

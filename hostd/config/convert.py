@@ -55,6 +55,11 @@ def build_volume(cfg: Config) -> np.ndarray:
                     dtype=float)
 
 
+def travel(cfg: Config) -> tuple[tuple[float, float], ...]:
+    """[min, max] of machine X, Y and Z (``machine.x_range`` ...), mm."""
+    return tuple((float(lo), float(hi)) for lo, hi in (cfg[f"machine.{a}_range"] for a in "xyz"))
+
+
 def decompose_settings(cfg: Config, **override: Any) -> Any:
     """DecomposeSettings of ``decompose.*`` (``override`` wins)."""
     from slicer.decompose import DecomposeSettings
@@ -79,4 +84,5 @@ def slice_inputs(cfg: Config, **override: Any) -> dict[str, Any]:
     """
     return {"settings": process_settings(cfg, **override), "geometry": machine_geometry(cfg),
             "head": printhead(cfg), "decompose_settings": decompose_settings(cfg),
-            "platform_radius": platform_radius(cfg), "build_volume": build_volume(cfg)}
+            "platform_radius": platform_radius(cfg), "build_volume": build_volume(cfg),
+            "travel": travel(cfg)}
