@@ -72,9 +72,26 @@ def _slice(args: argparse.Namespace, inputs: dict[str, Any]) -> Any:
         raise CliError(f"{args.model}: {exc}", EXIT_FAILED) from None
 
 
+def _check_outputs(args: argparse.Namespace) -> None:
+    """Refuse, before minutes of slicing, outputs that could not be written or would
+    overwrite the model."""
+    out = Path(args.output)
+    model = Path(args.model)
+    if model.exists() and out.exists() and out.resolve() == model.resolve():
+        raise CliError(f"-o {args.output}: that is the model itself; name another file")
+    wanted = [(out, "-o")] + ([(Path(args.preview), "--preview")] if args.preview else [])
+    for path, flag in wanted:
+        if not path.parent.is_dir():
+            raise CliError(f"{flag} {path}: no such directory {path.parent}")
+    if args.preview and Path(args.preview).suffix.lower() != ".png":
+        raise CliError(f"--preview {args.preview}: the preview is a PNG image; name a *.png "
+                       "file")
+
+
 def run(args: argparse.Namespace) -> int:
     """Slice, write, print the summary."""
     t0 = time.perf_counter()
+    _check_outputs(args)
     result = _slice(args, _inputs(args))
     from slicer.gcode import write_gcode
 

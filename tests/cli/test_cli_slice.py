@@ -40,11 +40,24 @@ def test_slice_writes_checked_gcode_and_summary(stl, tmp_path, capsys):
     (["slice", "/nonexistent.stl", "-o", "x.gcode"], "/nonexistent.stl"),
     (["slice", "{stl}", "-o", "x.gcode", "--layer-height", "0.9"], "--layer-height"),
     (["slice", "{stl}", "-o", "x.gcode", "--config", "/nonexistent.yaml"], "no such file"),
+    (["slice", "{stl}", "-o", "x.gcode", "--preview", "{tmp}/p.xyz"], "name a *.png file"),
+    (["slice", "{stl}", "-o", "x.gcode", "--preview", "{tmp}/p"], "name a *.png file"),
+    (["slice", "{stl}", "-o", "x.gcode", "--preview", "{tmp}/no/p.png"], "no such directory"),
 ])
 def test_bad_input_is_one_line_and_nonzero(stl, tmp_path, capsys, args, message):
-    argv = [a.format(stl=stl) for a in args]
+    argv = [a.format(stl=stl, tmp=tmp_path) for a in args]
     argv[argv.index("-o") + 1] = str(tmp_path / "x.gcode")
     rc = main(argv)
     err = capsys.readouterr().err.strip()
     assert rc != 0 and message in err and len(err.splitlines()) == 1
     assert not (tmp_path / "x.gcode").exists()
+
+
+def test_the_model_is_never_its_own_output(tmp_path, capsys):
+    model = tmp_path / "part.stl"
+    cylinder(radius=6.0, height=12.0).export(model)
+    before = model.read_bytes()
+    rc = main(["slice", str(model), "-o", str(tmp_path / "." / "part.stl")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and "that is the model itself" in err and len(err.splitlines()) == 1
+    assert model.read_bytes() == before
