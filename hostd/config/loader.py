@@ -164,7 +164,8 @@ def _cross_checks(config: Config, name: str, root: yaml.MappingNode) -> None:
 
 def _problems(c: Config) -> Iterator[tuple[str, str]]:
     if c["serial.reconnect_min"] > c["serial.reconnect_max"]:
-        yield "serial.reconnect_min", "is above serial.reconnect_max"
+        yield "serial.reconnect_min", (f"{c['serial.reconnect_min']:g} is above "
+                                       f"serial.reconnect_max ({c['serial.reconnect_max']:g})")
     segs = c["printhead.segments"]
     for i, s in enumerate(segs):
         if s["end"] <= s["start"]:
@@ -173,7 +174,10 @@ def _problems(c: Config) -> Iterator[tuple[str, str]]:
             yield "printhead.segments", f"item {i}: start {s['start']:g} leaves a gap"
     if segs and segs[0]["start"] != 0:
         yield "printhead.segments", "the first segment must start at the nozzle tip (0)"
-    if c["process.line_width"] < c["machine.nozzle_diameter"] * 0.8:
-        yield "process.line_width", "is narrower than 0.8 × machine.nozzle_diameter"
-    if c["process.layer_height"] > c["machine.nozzle_diameter"] * 0.8:
-        yield "process.layer_height", "is above 0.8 × machine.nozzle_diameter"
+    bound = c["machine.nozzle_diameter"] * 0.8
+    if c["process.line_width"] < bound:
+        yield "process.line_width", (f"{c['process.line_width']:g} is narrower than 0.8 × "
+                                     f"machine.nozzle_diameter ({bound:g})")
+    if c["process.layer_height"] > bound:
+        yield "process.layer_height", (f"{c['process.layer_height']:g} is above 0.8 × "
+                                       f"machine.nozzle_diameter ({bound:g})")

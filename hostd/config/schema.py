@@ -65,9 +65,11 @@ SCHEMA: dict[str, dict[str, Field]] = {
             keys=("start", "end", "r_start", "r_end"), lo=0.0, hi=1000.0),
     },
     "process": {
-        "layer_height": Number("Nominal layer thickness t along the skeleton, mm.", 0.2,
+        "layer_height": Number("Nominal layer thickness t along the skeleton, mm; at most 0.8 × "
+                               "machine.nozzle_diameter.", 0.2,
                                lo=0.04, hi=1.0),
-        "line_width": Number("Extrusion width, mm.", 0.45, lo=0.1, hi=2.0),
+        "line_width": Number("Extrusion width, mm; at least 0.8 × machine.nozzle_diameter.",
+                             0.45, lo=0.1, hi=2.0),
         "perimeters": Number("Number of perimeter loops.", 2, lo=1, hi=20, integer=True),
         "infill_density": Number("Sparse infill density, 0..1.", 0.2, lo=0.0, hi=1.0),
         "infill_angle": Number("Infill direction of even layers, degrees.", 45.0, lo=-180,

@@ -79,7 +79,13 @@ def _error(text: str) -> str:
         ("- a\n- b\n", "config/hostd.yaml:1: the top level must be a mapping"),
         ("machine:\n  a_limits: [1, 2\n", "config/hostd.yaml:3: invalid YAML"),
         ("serial:\n  reconnect_min: 5\n  reconnect_max: 1\n",
-         "config/hostd.yaml:2: serial.reconnect_min: is above serial.reconnect_max"),
+         "config/hostd.yaml:2: serial.reconnect_min: 5 is above serial.reconnect_max (1)"),
+        ("process:\n  layer_height: 0.5\n",
+         "config/hostd.yaml:2: process.layer_height: 0.5 is above 0.8 × "
+         "machine.nozzle_diameter (0.32)"),
+        ("machine:\n  nozzle_diameter: 0.6\nprocess:\n  line_width: 0.45\n",
+         "config/hostd.yaml:4: process.line_width: 0.45 is narrower than 0.8 × "
+         "machine.nozzle_diameter (0.48)"),
         ("printhead:\n  segments:\n    - {start: 0, end: 5, r_start: 1}\n",
          "config/hostd.yaml:3: printhead.segments: item 0: missing r_end"),
         ("printhead:\n  segments:\n    - {start: 0, end: 5, r_start: 1, r_end: 2}\n"
