@@ -92,6 +92,9 @@ def read_stl(path: str | Path) -> trimesh.Trimesh:
     """Parse an STL file with trimesh, refusing empty, truncated or non-finite files."""
     name = str(path)
     try:
+        if not Path(path).is_file():  # a directory, /dev/zero, a pipe: no end to read to
+            raise MeshError(f"{name}: not a regular file" if Path(path).exists()
+                            else f"{name}: cannot read: No such file or directory")
         data = Path(path).read_bytes()
     except OSError as exc:
         raise MeshError(f"{name}: cannot read: {exc.strerror or exc}") from None
@@ -183,11 +186,25 @@ def repair(mesh: trimesh.Trimesh, name: str = "<mesh>") -> trimesh.Trimesh:
         raise MeshError(f"{name}: all triangles are degenerate")
     _fix_orientation(mesh)
     if not mesh.is_watertight:
-        open_edges = len(trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1))
-        raise MeshError(f"{name}: not watertight after repair ({open_edges} open edges)")
+        raise MeshError(f"{name}: not watertight after repair: {_edge_faults(mesh)}")
     if not mesh.is_winding_consistent or mesh.volume <= 0:
         raise MeshError(f"{name}: not a closed solid (inconsistent winding or no volume)")
     return mesh
+
+
+def _edge_faults(mesh: trimesh.Trimesh) -> str:
+    """What keeps a repaired mesh from being closed: open edges, or edges shared by more
+    than two triangles (bodies touching along an edge)."""
+    counts = np.unique(trimesh.grouping.hashable_rows(mesh.edges_sorted), return_counts=True)[1]
+    open_edges, shared = int((counts == 1).sum()), int((counts > 2).sum())
+    faults = ([f"{_count(open_edges, 'open edge')}"] if open_edges else []) + (
+        [f"{_count(shared, 'edge')} shared by more than two triangles (bodies touching "
+         "along an edge)"] if shared else [])
+    return ", ".join(faults) or "inconsistent edges"
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" + ("" if n == 1 else "s")
 
 
 def _fix_orientation(mesh: trimesh.Trimesh) -> None:
@@ -241,7 +258,9 @@ def place_on_platform(mesh: trimesh.Trimesh, name: str = "<mesh>"
     """Turn the base down onto z = 0 with its area centroid on the platform centre."""
     normal, area, faces = find_base(mesh)
     if area < MIN_BASE_AREA:
-        raise MeshError(f"{name}: no flat base (largest planar face region {area:.3g} mm²)")
+        dims = " × ".join(f"{x:.3g}" for x in mesh.extents)
+        raise MeshError(f"{name}: no flat base of {MIN_BASE_AREA:g} mm² to stand on (largest "
+                        f"planar face region {area:.3g} mm²; the part is {dims} mm)")
     matrix = trimesh.geometry.align_vectors(normal, [0.0, 0.0, -1.0])
     verts = trimesh.transform_points(mesh.vertices, matrix)
     tri = verts[mesh.faces[faces]]

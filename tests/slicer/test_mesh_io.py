@@ -168,3 +168,35 @@ def test_separate_bodies_are_located_in_the_files_coordinates(tmp_path):
         [30.0, 0.0, 0.0])
     msg = _refused(_manifold_stl(tmp_path, "two.stl", two))
     assert "2 separate bodies (the smallest, 64 mm³ near [32.0, 2.0, 2.0] mm" in msg
+
+
+def test_bodies_touching_along_an_edge_are_named_so(tmp_path):
+    a = trimesh.creation.box([10.0, 10.0, 10.0])
+    b = trimesh.creation.box([10.0, 10.0, 10.0])
+    b.apply_translation([10.0, 10.0, 0.0])  # the two share one vertical edge
+    path = tmp_path / "edge.stl"
+    trimesh.util.concatenate([a, b]).export(path)
+    msg = _refused(path)
+    assert "not watertight after repair: 1 edge shared by more than two triangles" in msg
+    assert "open edge" not in msg
+
+
+def test_a_mesh_with_holes_counts_its_open_edges(tmp_path):
+    mesh = samples.cylinder()
+    path = tmp_path / "open.stl"
+    trimesh.Trimesh(mesh.vertices, mesh.faces[:-1], process=False).export(path)
+    assert "not watertight after repair: 3 open edges" in _refused(path)
+
+
+@pytest.mark.parametrize("where", ["/dev/zero", "{tmp}"])
+def test_what_is_not_a_regular_file_is_not_read(tmp_path, where):
+    path = where.format(tmp=tmp_path)
+    with pytest.raises(MeshError, match=r"not a regular file$"):
+        load_mesh(path)
+
+
+def test_a_part_too_small_to_stand_says_its_size(tmp_path):
+    path = tmp_path / "tiny.stl"
+    trimesh.creation.box([0.5, 0.5, 0.5]).export(path)
+    msg = _refused(path)
+    assert "no flat base of 1 mm² to stand on" in msg and "the part is 0.5 × 0.5 × 0.5 mm" in msg
