@@ -12,6 +12,7 @@ import numpy as np
 from hostd.cli.errors import EXIT_FAILED, CliError
 from hostd.config import Config, ConfigError, load
 from hostd.config.paths import DEFAULT_CONFIG
+from hostd.config.schema import SCHEMA
 
 
 def register(subparsers: Any) -> None:
@@ -39,14 +40,21 @@ def _settings(cfg: Config, args: argparse.Namespace) -> Any:
                             angle_max=cfg["decompose.plane_angle_max"],
                             area_growth_max=cfg["decompose.area_growth_max"],
                             max_iterations=cfg["decompose.max_iterations"])
-    parts = cfg["decompose.parts"] if args.parts is None else args.parts
-    seed = cfg["decompose.seed"] if args.seed is None else args.seed
-    if parts < 0 or seed < 0:
-        raise CliError("--parts and --seed must be >= 0")
+    parts = cfg["decompose.parts"] if args.parts is None else _bounded("parts", args.parts)
+    seed = cfg["decompose.seed"] if args.seed is None else _bounded("seed", args.seed)
     if args.root is not None and args.root < 0:
         raise CliError(f"--root {args.root}: region numbers start at 0")
     return DecomposeSettings(parts=parts, root=args.root, seed=seed, search=search,
                              nozzle_diameter=cfg["machine.nozzle_diameter"])
+
+
+def _bounded(key: str, value: int) -> int:
+    """``--parts``/``--seed`` within the bounds of their config keys (``decompose.*``)."""
+    field = SCHEMA["decompose"][key]
+    lo, hi = getattr(field, "lo", None), getattr(field, "hi", None)
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise CliError(f"--{key} {value}: must lie in [{lo:.0f}, {hi:.0f}] (as decompose.{key})")
+    return value
 
 
 def run(args: argparse.Namespace) -> int:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import time
 from pathlib import Path
@@ -112,6 +113,10 @@ def _summary(r: Any, out: Path, seconds: float) -> None:
     est, rep = r.estimate, r.replay
     lo, hi = r.thickness
     print(f"wrote {out}: {len(r.lines)} lines")
+    turned = _turned_degrees(r.lines)
+    if turned > 0.5:
+        print(f"placed turned {turned:.0f}° from the file's orientation: the part's own "
+              "bottom has no flat base to stand on, so it stands on its largest flat face")
     print(f"sub-parts {r.subparts}, layers {r.layers}, local thickness {lo:.3f}–{hi:.3f} mm")
     print(f"filament {est['filament_mm']:.0f} mm ({est['mass_g']:.1f} g), "
           f"time {_hms(float(est['time_s']))} ({est['time_s']:.0f} s)")
@@ -122,6 +127,15 @@ def _summary(r: Any, out: Path, seconds: float) -> None:
               f"{len(rep['unsupported_wall_layers'])} unsupported wall layers), "
               f"collisions {rep['collisions']}")
     print(f"seconds {seconds:.2f} ({_stages(r.timings)})")
+
+
+def _turned_degrees(lines: list[str]) -> float:
+    """How far the placement (the ``;HOSTD_PLACEMENT`` header) tilted the file's Z axis."""
+    for line in lines[:8]:
+        if line.startswith(";HOSTD_PLACEMENT "):
+            zz = float(json.loads(line.split(" ", 1)[1])["matrix"][2][2])
+            return math.degrees(math.acos(max(-1.0, min(1.0, zz))))
+    return 0.0
 
 
 def _stages(timings: dict[str, float]) -> str:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -61,3 +62,20 @@ def test_the_model_is_never_its_own_output(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert rc == 2 and "that is the model itself" in err and len(err.splitlines()) == 1
     assert model.read_bytes() == before
+
+
+def test_a_part_turned_to_stand_says_so(tmp_path, capsys):
+    import trimesh
+
+    lying = cylinder(radius=6.0, height=12.0)
+    lying.apply_transform(trimesh.transformations.rotation_matrix(0.6, [1.0, 0.0, 0.0]))
+    model, out = tmp_path / "tilted.stl", tmp_path / "t.gcode"
+    lying.export(model)
+    assert main(["slice", str(model), "-o", str(out), "--layer-height", "0.3"]) == 0
+    turned = re.search(r"placed turned (\d+)° from the file's orientation",
+                       capsys.readouterr().out)
+    assert turned is not None and int(turned[1]) in (34, 146)  # onto either end disc
+    upright = tmp_path / "upright.stl"
+    cylinder(radius=6.0, height=12.0).export(upright)
+    assert main(["slice", str(upright), "-o", str(out), "--layer-height", "0.3"]) == 0
+    assert "placed turned" not in capsys.readouterr().out
