@@ -8,6 +8,11 @@ blobs, caps). The root group prints along +Z. A region also joins a group when i
 the group's direction with no face overhanging more than 40° from vertical. A tube that
 k-means cut into several slices or sectors is therefore one sub-part, and a branch leaving it
 at an angle starts a new group whose direction is its axis, oriented away from the parent.
+
+A solid branch's flat end cap hides its axis from the plain normal-spread test; such regions
+are judged again on their side faces (:func:`side_axes`, :func:`revolve_misfit`). A region
+still without an axis that would overhang in the group it joined is halved when that exposes
+a branch (:func:`group_regions_refined`). See docs/decomposition.md, step 3.
 """
 
 from __future__ import annotations
@@ -17,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slicer.partition import Partition, boundary_lengths
+from slicer.partition import Partition, boundary_lengths, split_region
 
 MERGE_ANGLE = 25.0  # degrees between a region's axis and its group's direction
 TUBULAR_RATIO = 0.35  # λ_min / λ_mid of the normal covariance below which a region has an axis
@@ -25,6 +30,10 @@ OVERHANG_COS = np.cos(np.radians(50.0))  # n·(-d) above this: a face overhangs 
 OVERHANG_SHARE = 0.02  # a region prints along d when less of its area overhangs
 COAXIAL_SHARE = 0.5  # bore/outside of one tube: centres within this share of the patch radius
 SWEEP_RATIO = 0.25  # λ_mid / λ_max above which its normals sweep around that axis
+CAP_ANGLE = 10.0  # degrees: faces whose normal is this close to ±axis are caps, not sides
+SIDE_SHARE = 0.5  # side faces must hold this share of a region's area for it to have an axis
+SPLIT_ROUNDS = 2  # times a stranded region (no axis, overhanging in its group) may be halved
+REVOLVE_MISFIT = 0.3  # side normals must meet the axis line within this share of the radius
 
 
 @dataclass
@@ -60,22 +69,140 @@ class Groups:
 def region_axes(part: Partition) -> tuple[np.ndarray, np.ndarray]:
     """Tube axis of every region and whether it is well defined.
 
+    The plain estimate is the unit eigenvector of the smallest eigenvalue of
+    Σ area · n nᵀ over the region's faces. It is well defined when the normals sweep around
+    it: λ_min / λ_mid < :data:`TUBULAR_RATIO` and λ_mid / λ_max > :data:`SWEEP_RATIO` (a flat
+    slab or a narrow strip has no axis). A flat end cap (the end of a solid rod, normals along
+    the axis) adds its whole area to λ_min and can hide the axis of the tube it closes; a
+    region that fails the plain test is therefore tried again on its *side faces* only
+    (:func:`side_axes`).
+
     Returns
     -------
     axes : (k, 3) float
-        Unit eigenvector of the smallest eigenvalue of Σ area · n nᵀ.
+        Unit axis of every region.
     tubular : (k,) bool
-        Whether the normals sweep around that axis: λ_min / λ_mid < :data:`TUBULAR_RATIO`
-        and λ_mid / λ_max > :data:`SWEEP_RATIO` (a flat slab or a narrow strip has no axis).
+        Whether that axis is well defined, by the plain test or on the side faces.
+    """
+    cov = _normal_covariance(part, np.ones((len(part.labels), 1), dtype=bool))[:, 0]
+    vals, vecs = np.linalg.eigh(cov)
+    plain = _sweeps(vals)
+    side_axis, side_ok = side_axes(part, vecs)
+    use_side = ~plain & side_ok
+    axes = np.where(use_side[:, None], side_axis, vecs[:, :, 0])
+    return axes, plain | side_ok
+
+
+def side_axes(part: Partition, candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis of every region estimated from its side faces, ignoring the caps.
+
+    For each candidate axis a (the three eigenvectors of the region's normal covariance) the
+    faces whose normals lie within :data:`CAP_ANGLE` of ±a are taken as caps and dropped; the
+    covariance of the remaining *side* faces must pass the sweep test
+    (:func:`_sweeps`) and the side faces must hold at least :data:`SIDE_SHARE` of the region's
+    area (a region that is mostly cap has no axis). Among the candidates that qualify, the one
+    whose side faces give the smallest λ_min / λ_mid wins; its axis is the side covariance's
+    least-spread direction.
+
+    Parameters
+    ----------
+    part : Partition
+    candidates : (k, 3, 3) float
+        Candidate axes of every region, one per column.
+
+    Returns
+    -------
+    axes : (k, 3) float
+        Side-face axis of every region (the first candidate where none qualifies).
+    ok : (k,) bool
+        Whether some candidate qualifies.
     """
     n, w, lab = part.mesh.face_normals, part.mesh.area_faces, part.labels
-    outer = n[:, :, None] * n[:, None, :] * w[:, None, None]
-    cov = np.zeros((part.count, 3, 3))
-    np.add.at(cov, lab, outer)
-    vals, vecs = np.linalg.eigh(cov)
-    ratio = vals[:, 0] / np.maximum(vals[:, 1], 1e-12)
-    sweep = vals[:, 1] / np.maximum(vals[:, 2], 1e-12)
-    return vecs[:, :, 0], (ratio < TUBULAR_RATIO) & (sweep > SWEEP_RATIO)
+    dots = np.einsum("fi,fic->fc", n, candidates[lab])  # (f, 3): n · candidate c
+    side = np.abs(dots) < np.cos(np.radians(CAP_ANGLE))
+    vals, vecs = np.linalg.eigh(_normal_covariance(part, side))  # (k, 3, 3), (k, 3, 3, 3)
+    share = np.stack([np.bincount(lab, weights=w * side[:, c], minlength=part.count)
+                      for c in range(3)], axis=1) / np.maximum(part.areas(), 1e-12)[:, None]
+    ok = _sweeps(vals) & (share >= SIDE_SHARE)  # (k, 3)
+    ratio = np.where(ok, vals[..., 0] / np.maximum(vals[..., 1], 1e-12), np.inf)
+    best = np.argmin(ratio, axis=1)
+    rows = np.arange(part.count)
+    axes = vecs[rows, best, :, 0]
+    keep = side[np.arange(len(lab)), best[lab]]
+    return axes, ok.any(axis=1) & (revolve_misfit(part, axes, keep) < REVOLVE_MISFIT)
+
+
+def revolve_misfit(part: Partition, axes: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """How far a region's faces are from a surface of revolution about its axis, (k,) float.
+
+    The normals of a tube's side (round, polygonal, hollow or not) all meet its axis line:
+    (p − c) · (a × n) = 0 for a point c on the line. c is fitted by least squares in the plane
+    across a; the misfit is the RMS of (p − c) · (a × n) over the RMS distance |(p − c)⊥| of
+    the faces from the line (area-weighted). It is near 0 for a tube and near 1 for a slab or a
+    half-disc, whose normals happen to be square to some direction without meeting a line.
+
+    Parameters
+    ----------
+    part : Partition
+    axes : (k, 3) float
+        Unit axis of every region.
+    faces : (f,) bool
+        Faces that count (the side faces).
+    """
+    k, lab = part.count, part.labels
+    w = part.mesh.area_faces * faces
+    a = axes[lab]  # (f, 3)
+    m = np.cross(a, part.mesh.face_normals)  # (f, 3), across the axis
+    p = part.mesh.triangles_center
+    tot = np.maximum(np.bincount(lab, weights=w, minlength=k), 1e-12)
+    mean = np.stack([np.bincount(lab, weights=w * p[:, i], minlength=k)
+                     for i in range(3)], axis=1) / tot[:, None]  # (k, 3)
+    q = p - mean[lab]  # centred positions (f, 3)
+    lhs = np.zeros((k, 3, 3))
+    np.add.at(lhs, lab, w[:, None, None] * m[:, :, None] * m[:, None, :])
+    rhs = np.zeros((k, 3))
+    np.add.at(rhs, lab, (w * np.einsum("fi,fi->f", q, m))[:, None] * m)
+    scale = np.trace(lhs, axis1=1, axis2=2)[:, None, None] + 1e-12
+    lhs = lhs + scale * (axes[:, :, None] * axes[:, None, :] + 1e-9 * np.eye(3))  # pins c
+    # along the axis; the ridge keeps regions without side faces solvable
+    c = np.linalg.solve(lhs, rhs[:, :, None])[:, :, 0]  # (k, 3), relative to ``mean``
+    d = q - c[lab]
+    resid = np.einsum("fi,fi->f", d, m)
+    across = d - np.einsum("fi,fi->f", d, a)[:, None] * a
+    r2 = np.bincount(lab, weights=w * resid**2, minlength=k)
+    d2 = np.bincount(lab, weights=w * np.einsum("fi,fi->f", across, across), minlength=k)
+    return np.sqrt(r2 / np.maximum(d2, 1e-12))
+
+
+def _normal_covariance(part: Partition, mask: np.ndarray) -> np.ndarray:
+    """Σ area · n nᵀ per region over the masked faces, once per mask column.
+
+    Parameters
+    ----------
+    part : Partition
+    mask : (f, s) bool
+        Which faces count in each of ``s`` sums.
+
+    Returns
+    -------
+    (k, s, 3, 3) float
+    """
+    n, w, lab = part.mesh.face_normals, part.mesh.area_faces, part.labels
+    s = mask.shape[1]
+    outer = n[:, :, None] * n[:, None, :] * w[:, None, None]  # (f, 3, 3)
+    cov = np.zeros((part.count, s, 3, 3))
+    f, c = np.nonzero(mask)
+    np.add.at(cov, (lab[f], c), outer[f])
+    return cov
+
+
+def _sweeps(vals: np.ndarray) -> np.ndarray:
+    """Whether normals with covariance eigenvalues ``vals`` (..., 3), ascending, sweep around
+    the least-spread direction: λ_min / λ_mid < :data:`TUBULAR_RATIO` and
+    λ_mid / λ_max > :data:`SWEEP_RATIO`, (...) bool."""
+    ratio = vals[..., 0] / np.maximum(vals[..., 1], 1e-12)
+    sweep = vals[..., 1] / np.maximum(vals[..., 2], 1e-12)
+    return (ratio < TUBULAR_RATIO) & (sweep > SWEEP_RATIO)
 
 
 def bfs_tree(adjacency: np.ndarray, root: int) -> tuple[list[int], list[int | None]]:
@@ -131,9 +258,13 @@ def group_regions(part: Partition, root: int, merge_angle: float = MERGE_ANGLE) 
     gparent: list[int | None] = [None]
     gdir = [np.array([0.0, 0.0, 1.0])]
     while (group < 0).any():
-        _grow_aligned(group, gdir, adjacency, axes, tubular, cos_max, part)
-        _absorb_axisless(group, adjacency, tubular)
-        _join_coaxial(group, np.asarray(gdir), axes, tubular, centres, part.areas(), cos_max)
+        before = None
+        while before is None or (group != before).any():  # absorbing a blob may make a
+            before = group.copy()  # region beyond it adjacent to a group it aligns with
+            _grow_aligned(group, gdir, adjacency, axes, tubular, cos_max, part)
+            _absorb_axisless(group, adjacency, tubular)
+            _join_coaxial(group, np.asarray(gdir), axes, tubular, centres, part.areas(),
+                          cos_max)
         free = group < 0
         if not free.any():
             break
@@ -145,6 +276,86 @@ def group_regions(part: Partition, root: int, merge_angle: float = MERGE_ANGLE) 
         gparent.append(int(group[p]))
         gdir.append(axes[r] if axes[r] @ away >= 0 else -axes[r])
     return Groups(group, gparent, np.asarray(gdir), list(range(len(gparent))), adjacency)
+
+
+def group_regions_refined(part: Partition, root: int, merge_angle: float = MERGE_ANGLE,
+                          seed: int = 0, rounds: int = SPLIT_ROUNDS
+                          ) -> tuple[Partition, Groups]:
+    """:func:`group_regions`, halving stranded regions that hide a branch and grouping again.
+
+    A region is *stranded* (:func:`stranded_regions`) when it has no axis, so it joined a
+    group by its boundary only, and overhangs along that group's direction: a k-means patch
+    straddling the end of a solid branch and the tube it leaves (no axis: the two tubes'
+    normals mix) would print the branch in the tube's layers. Each stranded region is cut in
+    two (:func:`slicer.partition.split_region`); the cut is kept only when it reveals a branch:
+    a half that is a clean tube (:func:`clean_tubes`) whose axis is more than ``merge_angle``
+    away from the group's direction. The groups are then built again, at most ``rounds``
+    times.
+
+    Parameters
+    ----------
+    part : Partition
+    root : int
+        Root region (never cut).
+    merge_angle : float
+        Degrees, as in :func:`group_regions`.
+    seed : int
+        Seed of the 2-means cuts.
+    rounds : int
+
+    Returns
+    -------
+    part : Partition
+        The partition the groups refer to (``part`` itself when nothing was cut; the original
+        regions keep their indices, halves get new ones).
+    groups : Groups
+    """
+    groups = group_regions(part, root, merge_angle)
+    cos_max = np.cos(np.radians(merge_angle))
+    for _ in range(rounds):
+        cut = False
+        for r in np.flatnonzero(stranded_regions(part, groups, root)):
+            halved = split_region(part, int(r), seed)
+            if halved is None:
+                continue
+            halves = np.array([r, halved.count - 1])
+            axes, tube = clean_tubes(halved)
+            off = np.abs(axes[halves] @ groups.direction[groups.region_group[r]]) < cos_max
+            if (tube[halves] & off).any():
+                part, cut = halved, True
+        if not cut:
+            break
+        groups = group_regions(part, root, merge_angle)
+    return part, groups
+
+
+def clean_tubes(part: Partition) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`region_axes`, keeping as tubular only regions whose normals also meet the axis
+    line (:func:`revolve_misfit` below :data:`REVOLVE_MISFIT`, over the faces that are not
+    caps): the normal-spread test alone also passes for a patch of a junction that mixes two
+    tubes' normals, which must not start a branch.
+
+    Returns
+    -------
+    axes : (k, 3) float
+    tube : (k,) bool
+    """
+    axes, tubular = region_axes(part)
+    n = part.mesh.face_normals
+    side = np.abs(np.einsum("fi,fi->f", n, axes[part.labels])) < np.cos(np.radians(CAP_ANGLE))
+    return axes, tubular & (revolve_misfit(part, axes, side) < REVOLVE_MISFIT)
+
+
+def stranded_regions(part: Partition, groups: Groups, root: int) -> np.ndarray:
+    """Regions without an axis whose area overhangs along their group's direction by
+    :data:`OVERHANG_SHARE` or more, (k,) bool (the root and base regions never are)."""
+    _, tubular = region_axes(part)
+    share = np.stack([overhang_share(part, d) for d in groups.direction])  # (g, k)
+    over = share[groups.region_group, np.arange(part.count)] >= OVERHANG_SHARE
+    out = over & ~tubular
+    out[root] = False
+    out[_base_regions(part)] = False
+    return out
 
 
 def _base_regions(part: Partition, tol: float = 1e-3) -> np.ndarray:

@@ -22,7 +22,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from kinematics.machine import MachineGeometry
-from slicer.buildorder import MERGE_ANGLE, Groups, group_regions, root_region
+from slicer.buildorder import MERGE_ANGLE, Groups, group_regions_refined, root_region
 from slicer.mesh_io import check_size, place_on_platform, repair, separate_bodies
 from slicer.partition import Partition, coarse_partition
 from slicer.plane_refine import ParentFrame, refine_plane, splits_clear
@@ -193,7 +193,8 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     if not 0 <= root < part.count:
         raise RootRegionError(root, part.count)
     try:
-        groups = group_regions(part, root, settings.merge_angle)
+        part, groups = group_regions_refined(part, root, settings.merge_angle,
+                                             settings.seed)
     except ValueError as exc:
         raise DecompositionError(str(exc)) from None
     clock.lap("build_order")
@@ -293,6 +294,7 @@ def _find_plane(ctx: PieceContext, part: Partition, face_group: np.ndarray, grou
     centre = am.triangles_center[face_group == g].mean(axis=0)
     lsq = fit_plane(pts, centre)
     axis = groups.direction[g] * np.sign(groups.direction[g] @ (centre - lsq.point) or 1.0)
+    axis = nearest_reachable(axis, ctx.a_limits)
     total, best = 0, None
     for start in (Plane(lsq.point, axis), lsq):
         check, its = search_plane(ctx, start, settings.search, rng,
@@ -303,6 +305,41 @@ def _find_plane(ctx: PieceContext, part: Partition, face_group: np.ndarray, grou
         best = check if best is None or check.penalty < best.penalty else best
     assert best is not None
     raise DecompositionError(_failure(best, g, pg, total))
+
+
+def nearest_reachable(direction: np.ndarray, a_limits: tuple[float, float]) -> np.ndarray:
+    """The direction reachable within ``a_limits`` nearest to unit ``direction`` (3,).
+
+    The tilt from +Z is clamped into the reachable range (A turns a tilt t or -t to +Z; C
+    any azimuth), the azimuth kept. A branch pointing below the horizontal is then searched
+    from the horizontal through its root, not from a plane the walk must tilt step by step
+    (each step also drifting the plane along the branch).
+
+    Parameters
+    ----------
+    direction : (3,) float
+        Unit direction in the platform frame.
+    a_limits : (2,) float
+        A range [min, max], degrees.
+
+    Returns
+    -------
+    (3,) float
+        ``direction`` itself when reachable (or when no tilt is), else the clamped unit vector.
+    """
+    d = np.asarray(direction, dtype=float)
+    tilt = np.degrees(np.arctan2(np.hypot(d[0], d[1]), d[2]))
+    lo, hi = a_limits
+    spans = [(max(lo, 0.0), hi), (max(-hi, 0.0), -lo)]
+    options = [float(np.clip(tilt, a, b)) for a, b in spans if a <= b]
+    if not options:
+        return d
+    best = min(options, key=lambda t: abs(t - tilt))
+    if abs(best - tilt) < 1e-9:
+        return d
+    az = np.arctan2(d[1], d[0])
+    t = np.radians(best)
+    return np.array([np.sin(t) * np.cos(az), np.sin(t) * np.sin(az), np.cos(t)])
 
 
 def _failure(check: Check, g: int, pg: int, iterations: int) -> str:
@@ -347,4 +384,5 @@ def write_decomposition(dec: Decomposition, out_dir: str | Path) -> Path:
 
 
 __all__ = ["DecomposeSettings", "Decomposition", "DecompositionError", "PlaneSearchError",
-           "RootRegionError", "Subpart", "decompose", "write_decomposition"]
+           "RootRegionError", "Subpart", "decompose", "nearest_reachable",
+           "write_decomposition"]

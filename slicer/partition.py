@@ -195,6 +195,37 @@ def _merge_targets(shared: np.ndarray, areas: np.ndarray, small: np.ndarray) -> 
     return target
 
 
+def split_region(part: Partition, region: int, seed: int,
+                 min_share: float = MIN_REGION_SHARE) -> Partition | None:
+    """``part`` with ``region`` cut in two by area-weighted 2-means on its face centroids.
+
+    The first half keeps the index ``region``, the second becomes region ``part.count`` (the
+    other regions keep theirs, so a root chosen by index stays valid). Returns ``None`` when
+    the halves would not both be edge-connected and at least ``min_share`` of the whole area.
+    """
+    m = part.mesh
+    faces = np.flatnonzero(part.labels == region)
+    if len(faces) < 2:
+        return None
+    half = kmeans_labels(m.triangles_center[faces], m.area_faces[faces], 2, seed)
+    labels = part.labels.copy()
+    labels[faces[half == 1]] = part.count
+    # stray faces of one half cut off inside the other (the 2-means boundary runs across
+    # single triangles) go to the other half: each half keeps its largest piece only
+    comp = split_disconnected(m, labels)[faces]
+    area = np.bincount(comp, weights=m.area_faces[faces])
+    for h in (0, 1):
+        mine = half == h
+        if mine.any():
+            main = np.unique(comp[mine])[np.argmax(area[np.unique(comp[mine])])]
+            labels[faces[mine & (comp != main)]] = part.count if h == 0 else region
+    areas = np.bincount(labels, weights=m.area_faces, minlength=part.count + 1)
+    pieces = int(split_disconnected(m, labels).max()) + 1
+    if pieces != part.count + 1 or min(areas[region], areas[-1]) < min_share * m.area:
+        return None
+    return Partition(m, labels, part.k_requested)
+
+
 def coarse_partition(mesh: trimesh.Trimesh, k: int | None, seed: int) -> Partition:
     """K-means coarse partition of ``mesh`` (paper 2.2.1) with connectivity clean-up.
 

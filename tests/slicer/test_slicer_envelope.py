@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import manifold3d as m3
 import numpy as np
 import pytest
 import trimesh
 from handmade_plans import box_plan, two_part_plan
+from shared_models import MODELS
 
 from kinematics.machine import MachineGeometry
 from slicer.envelope import (
@@ -30,7 +30,7 @@ from slicer.settings import ProcessSettings
 
 GEO = MachineGeometry()
 SETTINGS = ProcessSettings()
-PIPE2 = Path("/work/shared/models/pipe2.stl")
+PIPE2 = MODELS / "pipe2.stl"
 TABLE_Z = GEO.table_origin[2]
 
 
