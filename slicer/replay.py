@@ -32,20 +32,20 @@ import trimesh
 
 from kinematics.machine import MachineGeometry
 from slicer.gcode_reader import GcodeFormatError, ParsedGcode, read_gcode
+from slicer.layers import SlicingError
 from slicer.printhead import Printhead
 from slicer.replay_collide import find_collisions
 from slicer.replay_coverage import coverage
 from slicer.replay_geometry import ModelIndex
 from slicer.replay_kdtree import point_tree
 from slicer.replay_samples import (
-    MappedMoves,
     Samples,
     extruding_moves,
     geometry_from_header,
-    map_moves,
+    map_and_sample,
     move_lengths,
     positioned_moves,
-    sample_moves,
+    sample_count,
 )
 from slicer.replay_stages import Stages
 from slicer.replay_support import WALL_SLACK, bad_wall_layers, bridged, strict_support
@@ -56,6 +56,14 @@ TIP_SPACING = 1.0  # mm between head samples along moves
 FAR_TIP_SPACING = 3.0  # mm between samples of the carriage (radius ≥ 15 mm by default)
 TIP_ANGLE = 1.0  # degrees between head samples while the table turns
 H_MIN, H_MAX = 0.25, 2.0  # bead heights read from E are clipped to these × layer height
+MEMORY_BUDGET = 1 << 30  # bytes the check may hold at its peak (memory_estimate)
+BYTES_PER_SAMPLE = 160  # peak bytes per deposited sample, per head sample, per move
+BYTES_PER_TIP = 80
+BYTES_PER_MOVE = 64
+
+
+class ReplayBudgetError(SlicingError):
+    """The part is too large to check within the replay's memory budget (one line)."""
 
 
 @dataclass
@@ -159,7 +167,8 @@ def model_index(mesh: trimesh.Trimesh, line_width: float,
 
 def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | None = None,
                  platform_radius: float | None = None, placed: bool = False, threads: int = 2,
-                 index: ModelIndex | None = None) -> ReplayReport:
+                 index: ModelIndex | None = None, memory_budget: float | None = None
+                 ) -> ReplayReport:
     """Replay ``parsed`` against ``mesh`` and report the figures.
 
     ``mesh`` is in STL coordinates (moved by the file's placement), or already in the
@@ -167,6 +176,9 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     ``;HOSTD_KINEMATICS`` values. With ``threads`` ≥ 2 the stages run on that many threads
     as their inputs allow (:mod:`.replay_stages`); the figures are the same. ``index`` is
     :func:`model_index` of the placed ``mesh`` at the file's line width, when already built.
+
+    Raises :class:`ReplayBudgetError` before any sample is taken when the check would need
+    more than ``memory_budget`` bytes (default ``MEMORY_BUDGET``; :func:`check_budget`).
     """
     t0 = time.perf_counter()
     geo = geometry_from_header(parsed)
@@ -177,10 +189,12 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         parsed.headers.get("KINEMATICS", {}).get("platform_radius", 150.0))
     bead_area = math.pi * proc["filament_diameter"] ** 2 / 4.0 / w
     placement = np.eye(4) if placed else _placement(parsed)
+    lengths = move_lengths(parsed)
+    budget = MEMORY_BUDGET if memory_budget is None else memory_budget
+    check_budget(parsed, lengths, w, budget, index.nbytes if _fits(index, w) else 0)
     with Stages(threads) as st:  # in an order where every input is submitted first
         model_f = st.submit("index", lambda: index if _fits(index, w) else model_index(
             mesh, w, placement))
-        lengths = move_lengths(parsed)
         dep_f = st.submit("sample", lambda: _deposits(parsed, geo, lengths, bead_area, w, t))
         # the head's samples need no deposits: taken while the deposits are sampled
         tips_f = st.submit("head samples", lambda: _head_samples(parsed, geo, lengths,
@@ -202,14 +216,14 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         bridge_f = st.submit("bridging", lambda: _bridging(
             model_f.result(), dep_f.result()[1], ok_f.result(), wall_f.result()[1], t, w,
             proc["infill_density"]), ok_f, wall_f)
-        beads, s = dep_f.result()
+        (n_beads, deposited), s = dep_f.result()
         ok, wall, bridge = ok_f.result(), wall_f.result()[1], bridge_f.result()
         (n_hit, reports), (cov, shell_cov) = hit_f.result(), cov_f.result()
         inside_share = inside_f.result()
     bad_layers = [_layer_name(s, k) for k in bad_wall_layers(s.seq[::JUDGE_STRIDE], wall, ok)]
     n = max(len(ok), 1)
     return ReplayReport(
-        moves=len(parsed), extruding_moves=len(beads.moves), deposited_mm=float(beads.length.sum()),
+        moves=len(parsed), extruding_moves=n_beads, deposited_mm=deposited,
         points=len(s), inside=inside_share, coverage=cov, shell_coverage=shell_cov,
         supported=float((ok | bridge).sum() / n), bridged=float((bridge & ~ok).sum() / n),
         wall_points=int(wall.sum()),
@@ -232,11 +246,45 @@ def _inside_pitch(line_width: float) -> float:
 
 def _deposits(parsed: ParsedGcode, geo: MachineGeometry,
               lengths: tuple[np.ndarray, np.ndarray], bead_area: float, line_width: float,
-              layer_height: float) -> tuple[MappedMoves, Samples]:
-    """The extruding moves and their samples every half line width."""
-    beads = map_moves(parsed, geo, extruding_moves(parsed, lengths), lengths, bead_area,
-                      (H_MIN * layer_height, H_MAX * layer_height))
-    return beads, sample_moves(parsed, geo, beads, 0.5 * line_width, TIP_ANGLE)
+              layer_height: float) -> tuple[tuple[int, float], Samples]:
+    """(number of extruding moves, their length in mm) and their samples every half line
+    width (the mapped moves are dropped: they would live as long as the samples)."""
+    moves = extruding_moves(parsed, lengths)
+    return ((len(moves), float(lengths[0][moves].sum())),
+            map_and_sample(parsed, geo, moves, lengths, bead_area, 0.5 * line_width,
+                           TIP_ANGLE, (H_MIN * layer_height, H_MAX * layer_height)))
+
+
+def memory_estimate(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray],
+                    line_width: float) -> tuple[int, int]:
+    """(deposited samples, bytes) the replay of ``parsed`` needs at its peak, from the
+    moves alone (nothing is sampled): ``BYTES_PER_SAMPLE`` per deposited sample,
+    ``BYTES_PER_TIP`` per head sample, ``BYTES_PER_MOVE`` per move.
+
+    The figures bound the traced peak of the check's arrays (the samples, their KD-tree,
+    the stages' chunked temporaries; two stages at once) on ``bench/slice_memory.py``'s
+    parts, rounded up; the model index is counted apart (:func:`check_budget`), the parsed
+    file not at all (the caller holds it anyway).
+    """
+    dep, pos = extruding_moves(parsed, lengths), positioned_moves(parsed, lengths)
+    n = sample_count(lengths[0][dep], lengths[1][dep], 0.5 * line_width, TIP_ANGLE)
+    tips = (sample_count(lengths[0][pos], lengths[1][pos], TIP_SPACING, TIP_ANGLE)
+            + sample_count(lengths[0][pos], lengths[1][pos], FAR_TIP_SPACING, TIP_ANGLE))
+    return n, n * BYTES_PER_SAMPLE + tips * BYTES_PER_TIP + len(parsed) * BYTES_PER_MOVE
+
+
+def check_budget(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray],
+                 line_width: float, budget: float, index_bytes: int = 0) -> None:
+    """Raise :class:`ReplayBudgetError` when :func:`memory_estimate` plus ``index_bytes``
+    (a prebuilt model index) exceeds ``budget`` bytes (the check holds every deposited
+    sample at once)."""
+    n, need = memory_estimate(parsed, lengths, line_width)
+    need += index_bytes
+    if need > budget:
+        raise ReplayBudgetError(
+            f"too large to replay-check: {n / 1e6:.1f} M bead samples would need about "
+            f"{need / 2**30:.1f} GiB, above the check's budget of {budget / 2**30:.1f} GiB "
+            f"(a smaller part, or a larger layer height, fits)")
 
 
 def _wall(model: ModelIndex, points: np.ndarray, line_width: float
@@ -252,9 +300,11 @@ def _head_samples(parsed: ParsedGcode, geo: MachineGeometry,
                   ) -> tuple[Samples, Samples]:
     """The head sampled along every move for :func:`~slicer.replay_collide.find_collisions`:
     (near samples for the nozzle, far ones for the carriage)."""
-    moved = map_moves(parsed, geo, positioned_moves(parsed, lengths), lengths, bead_area)
-    return (sample_moves(parsed, geo, moved, TIP_SPACING, TIP_ANGLE, ends=True),
-            sample_moves(parsed, geo, moved, FAR_TIP_SPACING, TIP_ANGLE, ends=True))
+    moves = positioned_moves(parsed, lengths)
+    near, far = (map_and_sample(parsed, geo, moves, lengths, bead_area, spacing, TIP_ANGLE,
+                                ends=True, beads=False)
+                 for spacing in (TIP_SPACING, FAR_TIP_SPACING))
+    return near, far
 
 
 def judged_samples(n: int) -> np.ndarray:

@@ -17,6 +17,7 @@ it hits.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -32,6 +33,7 @@ MAX_REPORTS = 20
 NEAR_PITCH = 0.5  # mm: bead resolution for the nozzle cone
 FAR_PITCH = 4 * NEAR_PITCH  # mm: bead resolution for the carriage (nests in NEAR_PITCH)
 SMALL_GROUP = 16  # tips of one axis checked by ball queries rather than as a group
+CHUNK = 1 << 20  # beads mapped to voxels at once
 
 
 @dataclass(frozen=True)
@@ -87,13 +89,62 @@ def voxel_representatives(beads: np.ndarray, pitch: float) -> np.ndarray:
     is a power of two times this one nest exactly (the scalings are exact), so the first
     beads of a coarser grid are found among this grid's representatives.
     """
-    if len(beads) == 0:
+    return first_in_voxels(len(beads), lambda lo, hi: beads[lo:hi], pitch,
+                           (beads.min(axis=0), beads.max(axis=0)) if len(beads) else None)
+
+
+def first_in_voxels(n: int, points: Callable[[int, int], np.ndarray], pitch: float,
+                    bounds: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """:func:`voxel_representatives` of ``n`` points handed over ``CHUNK`` at a time.
+
+    ``points(lo, hi)`` gives points ``lo:hi`` (hi − lo, 3) and ``bounds`` their (3,) minimum
+    and maximum (floor is monotonic, so the voxels' bounds follow). A voxel's first point is
+    the first of the first chunk that holds it, so the answer is the whole array's.
+    """
+    if n == 0 or bounds is None:
         return np.zeros(0, dtype=int)
-    cell = np.floor(beads / pitch).astype(np.int64)
-    cell -= cell.min(axis=0)
-    dims = cell.max(axis=0) + 1
-    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
-    return np.sort(np.unique(key, return_index=True)[1])
+    low = np.floor(bounds[0] / pitch).astype(np.int64)
+    dims = np.floor(bounds[1] / pitch).astype(np.int64) - low + 1
+    seen = np.zeros(0, dtype=np.int64)
+    out = []
+    for lo in range(0, n, CHUNK):
+        cell = np.floor(points(lo, min(lo + CHUNK, n)) / pitch).astype(np.int64)
+        cell -= low
+        key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+        del cell
+        key, first = np.unique(key, return_index=True)
+        if len(seen):
+            at = np.minimum(np.searchsorted(seen, key), len(seen) - 1)
+            new = seen[at] != key
+            key, first = key[new], first[new]
+            seen = np.sort(np.concatenate([seen, key]))
+        else:
+            seen = key
+        out.append(np.sort(first) + lo)
+    return np.concatenate(out)
+
+
+def bead_centres(deposits: Samples, lo: int = 0, hi: int | None = None) -> np.ndarray:
+    """Centres of the beads of deposits ``lo:hi`` (tip − h/2 along the axis), (k, 3)."""
+    sl = slice(lo, len(deposits) if hi is None else hi)
+    return deposits.p[sl] - deposits.u[sl] * (deposits.h[sl, None] / 2.0)
+
+
+def _centres_at(deposits: Samples, idx: np.ndarray) -> np.ndarray:
+    """:func:`bead_centres` of the deposits ``idx`` (k,), (k, 3)."""
+    return deposits.p[idx] - deposits.u[idx] * (deposits.h[idx, None] / 2.0)
+
+
+def _bead_bounds(deposits: Samples) -> tuple[np.ndarray, np.ndarray] | None:
+    """(3,) minimum and maximum of the bead centres, by chunks."""
+    if len(deposits) == 0:
+        return None
+    lows, highs = [], []
+    for lo in range(0, len(deposits), CHUNK):
+        b = bead_centres(deposits, lo, lo + CHUNK)
+        lows.append(b.min(axis=0))
+        highs.append(b.max(axis=0))
+    return np.min(lows, axis=0), np.max(highs, axis=0)
 
 
 def _group_hits(tips: Samples, sel: np.ndarray, beads: np.ndarray, bead_move: np.ndarray,
@@ -161,12 +212,13 @@ def axis_groups(u: np.ndarray) -> np.ndarray:
     return np.unique(q, axis=0, return_inverse=True)[1].ravel()  # a hash collision
 
 
-def _material_hits(tips: Samples, beads: np.ndarray, bead_move: np.ndarray, reps: np.ndarray,
-                   part: HeadPart) -> list[tuple[int, int]]:
+def _material_hits(tips: Samples, rep_beads: np.ndarray, rep_move: np.ndarray,
+                   reps: np.ndarray, part: HeadPart) -> list[tuple[int, int]]:
     """(tip, bead) of the earliest bead inside ``part`` at each colliding tip.
 
-    ``beads`` (n, 3) are in print order, laid by moves ``bead_move`` (n,); only their
-    voxel representatives ``reps`` are tested.
+    Only the beads' voxel representatives are tested: ``reps`` (k,) their indices among the
+    deposits (in print order), ``rep_beads`` (k, 3) their centres and ``rep_move`` (k,) the
+    moves that laid them.
 
     Tips sharing their axis with more than ``SMALL_GROUP`` others are checked by axis group
     (:func:`_group_hits`, whose set-up costs a pass over the beads), the others by a ball
@@ -175,7 +227,6 @@ def _material_hits(tips: Samples, beads: np.ndarray, bead_move: np.ndarray, reps
     hits: list[tuple[int, int]] = []
     if len(tips) == 0:
         return hits
-    rep_beads, rep_move = beads[reps], bead_move[reps]
     group = axis_groups(tips.u)
     order = np.argsort(group, kind="stable")
     cuts = np.flatnonzero(np.r_[True, group[order][1:] != group[order][:-1], True])
@@ -193,12 +244,12 @@ def _material_hits(tips: Samples, beads: np.ndarray, bead_move: np.ndarray, reps
     return hits
 
 
-def find_collisions(parsed: ParsedGcode, near: Samples, far: Samples, deposits: Samples,
+def find_collisions(parsed: ParsedGcode, near: Samples, far_tips: Samples, deposits: Samples,
                     head: Printhead, platform_radius: float) -> tuple[int, list[Collision]]:
     """Count colliding tip samples and describe the first of each (sub-part, layer, obstacle).
 
     The nozzle (the head's first segment) is checked at tips ``near`` against beads kept at
-    ``NEAR_PITCH``; the rest of the head at the sparser tips ``far`` against ``FAR_PITCH``
+    ``NEAR_PITCH``; the rest of the head at the sparser tips ``far_tips`` against ``FAR_PITCH``
     (one earliest bead per voxel: the check resolves material to that pitch).
 
     Returns
@@ -209,14 +260,17 @@ def find_collisions(parsed: ParsedGcode, near: Samples, far: Samples, deposits: 
         At most ``MAX_REPORTS``, in file order.
     """
     segs = head.segments
-    beads = deposits.p - deposits.u * (deposits.h[:, None] / 2.0)
-    reps = voxel_representatives(beads, NEAR_PITCH)
-    found = [(near, t, o) for t, o in _material_hits(near, beads, deposits.move, reps,
+    # the beads are found by chunks and only the voxels' first ones kept: (n, 3) arrays of
+    # every bead would cost as much as the samples again
+    reps = first_in_voxels(len(deposits), lambda lo, hi: bead_centres(deposits, lo, hi),
+                           NEAR_PITCH, _bead_bounds(deposits))
+    beads = _centres_at(deposits, reps)
+    found = [(near, t, o) for t, o in _material_hits(near, beads, deposits.move[reps], reps,
                                                       HeadPart(segs[:1]))]
     if len(segs) > 1:
-        far_reps = reps[voxel_representatives(beads[reps], FAR_PITCH)]
-        found += [(far, t, o) for t, o in _material_hits(far, beads, deposits.move, far_reps,
-                                                          HeadPart(segs[1:]))]
+        far = voxel_representatives(beads, FAR_PITCH)
+        found += [(far_tips, t, o) for t, o in _material_hits(
+            far_tips, beads[far], deposits.move[reps[far]], reps[far], HeadPart(segs[1:]))]
     found += [(near, int(t), -1) for t in np.flatnonzero(platform_hits(near, head,
                                                                         platform_radius))]
     found.sort(key=lambda x: (int(x[0].move[x[1]]), x[2]))

@@ -9,12 +9,14 @@ of them, so crossing counts (and parities) are exact.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
 from slicer.replay_unique import sorted_unique
 
+CHUNK_CROSSINGS = 1 << 18  # crossings computed at once when the grid is built
 _JITTER = np.array([1.234567e-7, 2.345678e-7])  # moves grid lines off axis-aligned edges
 
 
@@ -92,8 +94,14 @@ class ColumnGrid:
         origin = lo[:2] - pitch + _JITTER
         dims = np.ceil((hi[:2] - origin) / pitch).astype(np.int64) + 2
         z0, span = float(lo[2]) - 1.0, float(hi[2] - lo[2]) + 2.0
-        col, z = _crossings(tris, origin, pitch, dims)
-        return cls(origin, pitch, dims, np.sort(col * span + (z - z0)), z0, span)
+        total, batches = _crossings(tris, origin, pitch, dims)
+        key, n = np.empty(total), 0  # filled in place: one array of the keys at any time
+        for col, z in batches:
+            key[n:n + len(col)] = col * span + (z - z0)
+            n += len(col)
+        key.resize(n, refcheck=False)
+        key.sort()
+        return cls(origin, pitch, dims, key, z0, span)
 
     def nearest_column(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Column of the node nearest each point, and whether it lies on the grid."""
@@ -123,8 +131,10 @@ class ColumnGrid:
 
 
 def _crossings(tris: np.ndarray, origin: np.ndarray, pitch: float, dims: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """(column, z) of every crossing of the grid lines with the triangles."""
+               ) -> tuple[int, Iterator[tuple[np.ndarray, np.ndarray]]]:
+    """(column, z) of the crossings of the grid lines with the triangles, (k,) each, by
+    batches of at most about ``CHUNK_CROSSINGS`` (a large flat face crosses millions of
+    lines: its temporaries stay bounded), after an upper bound of their total count."""
     n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     t = tris[np.abs(n[:, 2]) > 1e-12]
     n = n[np.abs(n[:, 2]) > 1e-12]
@@ -137,14 +147,27 @@ def _crossings(tris: np.ndarray, origin: np.ndarray, pitch: float, dims: np.ndar
     lo, hi = _row_intervals(_sorted_xy(t)[owner], yr)
     i0 = np.ceil((lo - origin[0]) / pitch).astype(np.int64)
     i1 = np.ceil((hi - origin[0]) / pitch).astype(np.int64)  # exclusive
-    row, k = _spans(np.maximum(i1 - i0, 0))
-    i = i0[row] + k
-    tri = owner[row]
-    x, yy = origin[0] + i * pitch, yr[row]
-    a, nn = t[tri, 0], n[tri]
-    z = a[:, 2] - (nn[:, 0] * (x - a[:, 0]) + nn[:, 1] * (yy - a[:, 1])) / nn[:, 2]
-    ok = (i >= 0) & (i < dims[0]) & (j[row] >= 0) & (j[row] < dims[1])
-    return (i * dims[1] + j[row])[ok], z[ok]
+    width = np.maximum(i1 - i0, 0)
+    ends = np.cumsum(width)
+
+    def batches() -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        first = 0
+        while first < len(width):  # rows in batches of about CHUNK_CROSSINGS crossings
+            last = max(int(np.searchsorted(ends, ends[first] - width[first] + CHUNK_CROSSINGS,
+                                           side="right")), first + 1)
+            rows = slice(first, last)
+            first = last
+            row, kk = _spans(width[rows])
+            i = i0[rows][row] + kk
+            tri = owner[rows][row]
+            jr = j[rows][row]
+            x, yy = origin[0] + i * pitch, yr[rows][row]
+            a, nn = t[tri, 0], n[tri]
+            z = a[:, 2] - (nn[:, 0] * (x - a[:, 0]) + nn[:, 1] * (yy - a[:, 1])) / nn[:, 2]
+            ok = (i >= 0) & (i < dims[0]) & (jr >= 0) & (jr < dims[1])
+            yield (i * dims[1] + jr)[ok], z[ok]
+
+    return int(ends[-1]) if len(ends) else 0, batches()
 
 
 def volume_grid(tris: np.ndarray, pitch: float) -> np.ndarray:

@@ -25,6 +25,8 @@ from slicer.replay_unique import sorted_unique
 
 SURFACE_COVER = 0.15  # mm: every surface point lies this close to a surface sample
 SURFACE_LEAF = 32  # surface samples per KD-tree leaf (faster than 16 on the wall queries)
+CHUNK_POINTS = 1 << 18  # surface samples computed at once
+EXACT_CHUNK = 1 << 15  # points resolved exactly at once (their neighbour lists are Python's)
 INSIDE_PITCH = 0.05  # mm: default spacing of the vertical lines of the inside test
 _UP = np.array([0.0, 0.0, 1.0])
 
@@ -85,13 +87,31 @@ def surface_samples(tris: np.ndarray, cover: float) -> tuple[np.ndarray, np.ndar
     """
     centre = tris.mean(axis=1)
     small = np.linalg.norm(tris - centre[:, None], axis=2).max(axis=1) <= cover
-    pts, own = _row_samples(tris[~small], cover)
-    return (np.concatenate([centre[small], pts]),
-            np.concatenate([np.flatnonzero(small), np.flatnonzero(~small)[own]]))
+    start, end, count, tri = _rows(tris[~small], cover)
+    n0 = int(small.sum())
+    ends = np.cumsum(count)
+    points = np.empty((n0 + (int(ends[-1]) if len(ends) else 0), 3))
+    owner = np.empty(len(points), dtype=np.int64)
+    points[:n0], owner[:n0] = centre[small], np.flatnonzero(small)
+    big = np.flatnonzero(~small)
+    first = 0
+    while first < len(count):  # rows in batches of about CHUNK_POINTS points
+        last = max(int(np.searchsorted(ends, ends[first] - count[first] + CHUNK_POINTS,
+                                       side="right")), first + 1)
+        rows = slice(first, last)
+        out = slice(n0 + int(ends[first] - count[first]), n0 + int(ends[last - 1]))
+        first = last
+        row, i = _spans(count[rows])
+        f = (i / np.maximum(count[rows][row] - 1, 1))[:, None]
+        a, b = start[rows][row], end[rows][row]
+        points[out], owner[out] = a + f * (b - a), big[tri[rows][row]]
+    return points, owner
 
 
-def _row_samples(tris: np.ndarray, cover: float) -> tuple[np.ndarray, np.ndarray]:
-    """The row samples of :func:`surface_samples`: (points (m, 3), owner (m,))."""
+def _rows(tris: np.ndarray, cover: float
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The rows of :func:`surface_samples` on the triangles (t, 3, 3): start and end
+    (r, 3), their number of points (r,) and triangle (r,)."""
     gap_v, gap_h = cover / math.sqrt(2.0), cover * math.sqrt(2.0)
     edge = np.stack([np.linalg.norm(tris[:, (i + 2) % 3] - tris[:, (i + 1) % 3], axis=1)
                      for i in range(3)], axis=1)  # edge i lies opposite vertex i
@@ -106,9 +126,7 @@ def _row_samples(tris: np.ndarray, cover: float) -> tuple[np.ndarray, np.ndarray
     start = p0[tri] + t * (apex[tri] - p0[tri])
     end = p1[tri] + t * (apex[tri] - p1[tri])
     count = np.ceil(base[tri] * (1.0 - t[:, 0]) / gap_h - 1e-9).astype(np.int64) + 1
-    row, i = _spans(count)
-    f = (i / np.maximum(count[row] - 1, 1))[:, None]
-    return start[row] + f * (end[row] - start[row]), tri[row]
+    return start, end, count, tri
 
 
 def _spans(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -160,8 +178,14 @@ class ModelIndex:
         """Exact distance of each point (k, 3) to the triangles of the samples within
         ``radius`` (k,) of it (``inf`` when there are none), (k,)."""
         out = np.full(len(p), np.inf)
-        if len(p) == 0:
-            return out
+        for lo in range(0, len(p), EXACT_CHUNK):  # the neighbour lists are Python lists
+            hi = lo + EXACT_CHUNK
+            out[lo:hi] = self._exact_chunk(p[lo:hi], radius[lo:hi])
+        return out
+
+    def _exact_chunk(self, p: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """:meth:`_exact` of a few points (k, 3) at once, (k,)."""
+        out = np.full(len(p), np.inf)
         near = self._tree.query_ball_point(p, radius, workers=-1, return_sorted=False)
         counts = np.fromiter((len(x) for x in near), dtype=np.int64, count=len(p))
         if counts.sum() == 0:
@@ -228,6 +252,14 @@ class ModelIndex:
         if not self._solid_cache:
             self._solid_cache.append(_solid(*self._mesh))
         return self._solid_cache[0]
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the index's arrays (triangles, surface samples and their tree's
+        indices, column crossings, coverage grids)."""
+        grids = sum(g.nbytes + m.nbytes for g, m in self.grids.values())
+        return int(self.tris.nbytes + self._tree.data.nbytes + self._tree.indices.nbytes
+                   + self._owner.nbytes + self._columns.key.nbytes + grids)
 
     def parity_inside(self, points: np.ndarray) -> np.ndarray:
         """The column test alone: exact for points farther than ``inside_pitch / √2`` from the

@@ -15,6 +15,8 @@ import numpy as np
 from kinematics.machine import MachineGeometry
 from slicer.gcode_reader import GcodeFormatError, ParsedGcode
 
+CHUNK_SAMPLES = 1 << 18  # samples computed at once (their temporaries stay bounded)
+
 
 @dataclass
 class Samples:
@@ -31,9 +33,9 @@ class Samples:
     step : (n, 3) float
         Vector to the next sample on the same move: a sample stands for the bead centreline
         ``p + τ · step``, ``|τ| ≤ 1/2`` (the chord, on moves that turn the table).
-    move : (n,) int
+    move : (n,) int32
         Index of the move each sample lies on.
-    seq, subpart, layer : (n,) int
+    seq, subpart, layer : (n,) int32
         Layer in print order, sub-part and layer index of that move.
     """
 
@@ -168,16 +170,78 @@ def map_moves(parsed: ParsedGcode, geometry: MachineGeometry, moves: np.ndarray,
 
 
 def sample_moves(parsed: ParsedGcode, geometry: MachineGeometry, mapped: MappedMoves,
-                 spacing: float, angle_step: float, ends: bool = False) -> Samples:
+                 spacing: float, angle_step: float, ends: bool = False, beads: bool = True
+                 ) -> Samples:
     """Samples along the ``mapped`` moves at most ``spacing`` mm and ``angle_step``° apart.
 
     Samples sit at the middles of equal pieces, or at their ends (move end included) with
     ``ends``. Samples of moves that turn the table go through the inverse kinematics each.
+    Without ``beads`` (head samples) ``h`` and ``step`` are read-only zeros of no memory.
+    The move and layer numbers are int32.
     """
-    mv = mapped
-    count = np.maximum(1, np.ceil(np.maximum(mv.length / spacing, mv.turn / angle_step)))
-    count = count.astype(np.int64)
+    count = _counts(mapped.length, mapped.turn, spacing, angle_step)
+    out = _empty_samples(int(count.sum()), beads)
+    ends_at = np.cumsum(count)
+    for lo, hi in _move_chunks(ends_at):  # the temporaries of a chunk stay bounded
+        rows = slice(int(ends_at[lo] - count[lo]), int(ends_at[hi - 1]))
+        _sample_chunk(parsed, geometry, mapped, slice(lo, hi), count[lo:hi], ends, out, rows)
+    return out
+
+
+def map_and_sample(parsed: ParsedGcode, geometry: MachineGeometry, moves: np.ndarray,
+                   lengths: tuple[np.ndarray, np.ndarray], bead_area: float, spacing: float,
+                   angle_step: float, h_range: tuple[float, float] | None = None,
+                   ends: bool = False, beads: bool = True) -> Samples:
+    """``sample_moves(parsed, geometry, map_moves(parsed, geometry, moves, lengths,
+    bead_area, h_range), spacing, angle_step, ends, beads)``, the same samples, mapping
+    the moves (m,) a chunk at a time: the mapped moves' arrays (about 250 bytes a move
+    with their temporaries) never exist for all moves at once."""
+    count = _counts(lengths[0][moves], lengths[1][moves], spacing, angle_step)
+    out = _empty_samples(int(count.sum()), beads)
+    ends_at = np.cumsum(count)
+    for lo, hi in _move_chunks(ends_at):
+        rows = slice(int(ends_at[lo] - count[lo]), int(ends_at[hi - 1]))
+        mapped = map_moves(parsed, geometry, moves[lo:hi], lengths, bead_area, h_range)
+        _sample_chunk(parsed, geometry, mapped, slice(0, hi - lo), count[lo:hi], ends, out,
+                      rows)
+    return out
+
+
+def _counts(length: np.ndarray, turn: np.ndarray, spacing: float, angle_step: float
+            ) -> np.ndarray:
+    """Samples per move of XYZ ``length`` and A/C ``turn`` (m,), int64 (m,)."""
+    count = np.maximum(1, np.ceil(np.maximum(length / spacing, turn / angle_step)))
+    return count.astype(np.int64)
+
+
+def _empty_samples(n: int, beads: bool) -> Samples:
+    """Room for ``n`` samples; without ``beads``, ``h`` and ``step`` are read-only zeros."""
+    return Samples(np.empty((n, 3)), np.empty((n, 3)),
+                   np.empty(n) if beads else np.broadcast_to(0.0, (n,)),
+                   np.empty((n, 3)) if beads else np.broadcast_to(0.0, (n, 3)),
+                   np.empty(n, np.int32), np.empty(n, np.int32), np.empty(n, np.int32),
+                   np.empty(n, np.int32))
+
+
+def _move_chunks(ends_at: np.ndarray) -> list[tuple[int, int]]:
+    """Consecutive move ranges [lo, hi) of about ``CHUNK_SAMPLES`` samples each (at least one
+    move); ``ends_at`` (m,) is the cumulative sample count."""
+    out, lo = [], 0
+    while lo < len(ends_at):
+        start = ends_at[lo - 1] if lo else 0
+        hi = max(int(np.searchsorted(ends_at, start + CHUNK_SAMPLES, side="right")), lo + 1)
+        out.append((lo, hi))
+        lo = hi
+    return out
+
+
+def _sample_chunk(parsed: ParsedGcode, geometry: MachineGeometry, mapped: MappedMoves,
+                  moves: slice, count: np.ndarray, ends: bool, out: Samples, rows: slice
+                  ) -> None:
+    """Fill ``out[rows]`` with the samples of ``mapped``'s ``moves`` (``count`` (k,) each)."""
     owner, s = _fractions(count, ends)
+    owner += moves.start
+    mv = mapped
     p = mv.p0[owner] + (mv.p1 - mv.p0)[owner] * s[:, None]
     u = mv.u0[owner]
     turning = np.flatnonzero(mv.turn[owner] > 0)
@@ -186,10 +250,21 @@ def sample_moves(parsed: ParsedGcode, geometry: MachineGeometry, mapped: MappedM
         j = mv.start[o] + (mv.end[o] - mv.start[o]) * s[turning, None]
         p[turning] = inverse(j[:, :3], j[:, 3], j[:, 4], geometry)
         u[turning] = nozzle_axes(j[:, 3], j[:, 4])
+    out.p[rows], out.u[rows] = p, u
     m = mv.moves[owner]
-    step = ((mv.p1 - mv.p0) / count[:, None])[owner]
-    return Samples(p, u, mv.h[owner], step, m, parsed.layer_seq[m], parsed.subpart[m],
-                   parsed.layer[m])
+    out.move[rows] = m
+    if out.h.flags.writeable:
+        out.h[rows] = mv.h[owner]
+        out.step[rows] = ((mv.p1[moves] - mv.p0[moves]) / count[:, None])[owner - moves.start]
+    out.seq[rows], out.subpart[rows] = parsed.layer_seq[m], parsed.subpart[m]
+    out.layer[rows] = parsed.layer[m]
+
+
+def sample_count(length: np.ndarray, turn: np.ndarray, spacing: float, angle_step: float
+                 ) -> int:
+    """How many samples :func:`sample_moves` takes of moves of XYZ ``length`` and A/C
+    ``turn`` (both (m,)), without taking them."""
+    return int(_counts(length, turn, spacing, angle_step).sum())
 
 
 def extruding_moves(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray] | None = None

@@ -35,6 +35,7 @@ LATERAL_SLACK = 0.1  # × line width
 WALL_SLACK = 0.75  # × line width: wall points are this close to the surface
 BAD_LAYER_SHARE = 0.05
 NEIGHBOURS = 10
+CHUNK_PAIRS = 1 << 17  # (sample, candidate) pairs tested at once: 3 MiB per (pairs, 3) array
 
 
 def depth_limit(s: Samples, layer_height: float) -> np.ndarray:
@@ -114,7 +115,10 @@ def strict_support(s: Samples, layer_height: float, line_width: float,
     judged = np.arange(len(s)) if judged is None else judged
     dmax = depth_limit(s, layer_height)
     slack = LATERAL_SLACK * line_width
-    ok = platform_support(s.p[judged], s.u[judged], dmax[judged], platform_radius, slack)
+    ok = np.zeros(len(judged), dtype=bool)
+    for chunk in support_chunks(len(judged), 1):
+        j = judged[chunk]
+        ok[chunk] = platform_support(s.p[j], s.u[j], dmax[j], platform_radius, slack)
     if len(s) < 2:
         return ok
     reach = float(dmax.max())
@@ -123,18 +127,35 @@ def strict_support(s: Samples, layer_height: float, line_width: float,
     tree = tree or point_tree(s.p)
     todo = np.flatnonzero(~ok)
     for k in (1, min(NEIGHBOURS, len(s))):  # the nearest candidate settles most samples
-        top = judged[todo]
-        _, idx = tree.query(s.p[top] - s.u[top] * layer_height, k=k,
-                            distance_upper_bound=r, workers=-1)
-        idx = idx.reshape(len(todo), k)
-        valid = idx < len(s)
-        below = np.where(valid, idx, 0)
-        tops = np.repeat(top[:, None], k, axis=1)
-        hit = valid & _check(s, tops.ravel(), below.ravel(), dmax, slack,
-                             0.5 * line_width).reshape(valid.shape)
-        ok[todo] = hit.any(axis=1)
+        for chunk in support_chunks(len(todo), k):  # (len, k) temporaries stay bounded
+            part = todo[chunk]
+            ok[part] = _supported(s, judged[part], k, tree, r, dmax, layer_height, slack,
+                                  0.5 * line_width)
         todo = todo[~ok[todo]]
     return ok
+
+
+def support_chunks(n: int, k: int) -> list[slice]:
+    """Slices of ``n`` samples searched ``k`` candidates at a time, at most ``CHUNK_PAIRS``
+    (sample, candidate) pairs each: the pairs' (pairs, 3) temporaries stay bounded."""
+    step = max(1, CHUNK_PAIRS // max(k, 1))
+    return [slice(lo, min(lo + step, n)) for lo in range(0, n, step)]
+
+
+def _supported(s: Samples, top: np.ndarray, k: int, tree: cKDTree, r: float,
+               dmax: np.ndarray, layer_height: float, slack: float, half_width: float
+               ) -> np.ndarray:
+    """Whether one of the ``k`` samples nearest a point one layer height beneath each
+    sample ``top`` (m,) supports it, (m,) bool."""
+    _, idx = tree.query(s.p[top] - s.u[top] * layer_height, k=k,
+                        distance_upper_bound=r, workers=-1)
+    idx = idx.reshape(len(top), k)
+    valid = idx < len(s)
+    below = np.where(valid, idx, 0)
+    tops = np.repeat(top[:, None], k, axis=1)
+    hit = valid & _check(s, tops.ravel(), below.ravel(), dmax, slack,
+                         half_width).reshape(valid.shape)
+    return hit.any(axis=1)
 
 
 def bridged(s: Samples, candidates: np.ndarray, layer_height: float, line_width: float,
