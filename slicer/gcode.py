@@ -301,10 +301,10 @@ def build_program(plan: PrintPlan, settings: ProcessSettings,
     """
     machine = machine or MachineSetup()
     w = _Writer(plan, settings, machine)
-    w.prog.line("M83\nG90")
+    w.prog.line("G90\nM83")  # G90 after M83 makes E absolute again (Marlin 2)
     w.prog.line(_custom(settings.start_gcode, settings,
                         safe_z=round(start_safe_z(settings, machine), 3)))
-    w.prog.line(f"M83\nG90\nM106 S{int(settings.fan_speed)}")
+    w.prog.line(f"G90\nM83\nM106 S{int(settings.fan_speed)}")
     prev: int | None = None
     for sp in plan.subparts:
         w.subpart(sp, prev)

@@ -161,7 +161,7 @@ def _command(st: _State, body: str, n: int) -> None:
         _move(st, tokens[1:], g, n)
     elif head == "G91":
         raise GcodeFormatError(f"line {n}: G91 relative positioning is not supported")
-    elif head == "M82":
+    elif head in ("M82", "G90"):  # Marlin 2: G90 makes E absolute as well (after M83 too)
         st.rel_e = False
     elif head == "M83":
         st.rel_e = True

@@ -240,3 +240,19 @@ def test_joint_positions_at_one_pose_are_the_kinematics_forward():
     pts = rng.uniform(-80.0, 80.0, (500, 3))
     for a, c in ((0.0, 0.0), (37.5, -212.25), (-90.0, 719.0)):
         assert np.array_equal(forward_at(pts, a, c, GEO), forward(pts, a, c, GEO))
+
+
+def test_a_marlin_reading_of_the_file_extrudes_what_the_slicer_planned(two_part):
+    """Marlin 2 clears relative E on G90: the file must set G90 before M83, or the
+    relative E values are read as absolute positions and almost nothing is extruded.
+    ``ModalState`` follows Marlin's rules (as the emulator does)."""
+    from hostd.printer.modal import ModalState
+
+    _, res, parsed = two_part
+    marlin = ModalState()
+    marlin.apply_many([ln.split(";", 1)[0].strip() for ln in res.lines
+                       if ln.split(";", 1)[0].strip()])
+    est = json.loads(res.lines[3].split(" ", 1)[1])["filament_mm"]
+    assert est > 0
+    assert marlin.extruded == pytest.approx(float(parsed.e.sum()), rel=1e-6)
+    assert marlin.extruded == pytest.approx(est, rel=0.02)
