@@ -206,6 +206,9 @@ class Registry:
         except (ValueError, UnicodeDecodeError) as exc:
             return encode(response(None, error={"code": PARSE_ERROR,
                                                 "message": f"parse error: {exc}"}))
+        except RecursionError:  # json's decoder recurses once per nested array or object
+            return encode(response(None, error={"code": PARSE_ERROR,
+                                                "message": "parse error: nested too deeply"}))
         if isinstance(message, list):
             if not message:
                 return encode(response(None, error={"code": INVALID_REQUEST,
@@ -247,11 +250,11 @@ def _finite(obj: Any) -> Any:
 def _encode_safe(message: Any) -> str:
     try:
         return encode(message)
-    except ValueError:
+    except (ValueError, RecursionError):
         pass
     try:
         return encode(_finite(message))
-    except (TypeError, ValueError) as exc:  # a result JSON cannot carry (NaN, bytes, ...)
+    except (TypeError, ValueError, RecursionError) as exc:  # NaN, bytes, too deep ...
         log.error("unencodable result: %s", exc)
         req_id = message.get("id") if isinstance(message, dict) else None
         return encode(response(req_id, error={"code": INTERNAL_ERROR,

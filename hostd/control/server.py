@@ -97,6 +97,7 @@ class ControlServer:
         self.connections = 0
         self.oversized = 0
         self.inherited = False  # the listening socket came from systemd (socket activation)
+        self._made: tuple[int, int] | None = None  # (st_dev, st_ino) of the socket we bound
 
     async def start(self, sock: socket.socket | None = None) -> None:
         """Listen on ``path``, or serve ``sock``, a listening socket passed by systemd."""
@@ -114,6 +115,8 @@ class ControlServer:
         finally:
             os.umask(old)
         os.chmod(self.path, SOCKET_MODE)
+        made = self.path.stat()
+        self._made = (made.st_dev, made.st_ino)
         log.info("control socket %s", self.path)
 
     async def _adopt(self, sock: socket.socket) -> None:
@@ -159,7 +162,18 @@ class ControlServer:
         if self._server is not None:
             with contextlib.suppress(Exception):
                 await self._server.wait_closed()
-        if not self.inherited:  # systemd owns an activated socket's file
+        self._unlink_own()
+
+    def _unlink_own(self) -> None:
+        """Remove the socket file only if it is the one this server bound: not a live
+        daemon's socket, an ordinary file at that path, or systemd's activated socket."""
+        if self._made is None:
+            return
+        try:
+            st = self.path.lstat()
+        except FileNotFoundError:
+            return
+        if (st.st_dev, st.st_ino) == self._made:
             self.path.unlink(missing_ok=True)
 
     def _broadcast(self, name: str, data: dict[str, Any]) -> None:

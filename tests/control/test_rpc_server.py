@@ -129,6 +129,33 @@ async def test_integer_params_are_64_bit(value: int, ok: bool):
         assert reply["error"] == {"code": -32602, "message": f"n: {value} is out of range"}
 
 
+@pytest.mark.asyncio
+@pytest.mark.parametrize("depth", [2000, 200_000])
+async def test_json_nested_too_deeply_is_a_parse_error(depth: int):
+    """json's decoder recurses per level: a deep message raised RecursionError, which
+    reached the journal as a traceback and left the client without an answer."""
+    reg = make_registry()
+    async with asyncio.timeout(5):
+        for raw in ("[" * depth + "]" * depth, '{"a":' * depth + "1" + "}" * depth):
+            reply = json.loads(await reg.dispatch(raw, None))
+            assert reply["error"]["code"] == -32700
+            assert "nested too deeply" in reply["error"]["message"]
+
+
+@pytest.mark.asyncio
+async def test_a_deep_but_parseable_batch_gets_answers():
+    reg = make_registry()
+    deep = [{"jsonrpc": "2.0", "id": 1, "method": "echo", "params": {"text": "a"}}]
+    inner: list = []
+    for _ in range(400):  # below json's limit: parsed, then refused as params
+        inner = [inner]
+    deep.append({"jsonrpc": "2.0", "id": 2, "method": "echo", "params": [inner]})
+    async with asyncio.timeout(5):
+        replies = json.loads(await reg.dispatch(json.dumps(deep), None))
+    assert replies[0]["result"] == "a"
+    assert replies[1]["error"]["code"] == -32602
+
+
 def test_error_table_is_the_one_place():
     assert error_for(JobStateError("cannot"))["code"] == -32002
     assert error_for(EventError("x"))["code"] == -32602
@@ -269,9 +296,47 @@ async def test_second_server_on_a_live_socket_is_refused(tmp_path):
     first = ControlServer(path, make_registry(), bus, 4096)
     async with asyncio.timeout(5):
         await first.start()
+        second = ControlServer(path, make_registry(), bus, 4096)
         with pytest.raises(Exception, match="another daemon"):
-            await ControlServer(path, make_registry(), bus, 4096).start()
+            await second.start()
+        await second.close()  # the refused daemon shuts down: the live socket stays
+        r, w = await asyncio.open_unix_connection(str(path))
+        w.write(b'{"jsonrpc": "2.0", "id": 1, "method": "echo", "params": ["up"]}\n')
+        await w.drain()
+        assert json.loads(await r.readline())["result"] == "up"
+        w.close()
         await first.close()
+    assert not path.exists()  # the first removes its own socket
+
+
+@pytest.mark.asyncio
+async def test_a_server_refused_by_an_ordinary_file_leaves_the_file(tmp_path):
+    path = tmp_path / "s.sock"
+    path.write_text("operator's notes\n")
+    server = ControlServer(path, make_registry(), EventBus(), 4096)
+    async with asyncio.timeout(5):
+        with pytest.raises(Exception, match="exists and is not a socket"):
+            await server.start()
+        await server.close()
+    assert path.read_text() == "operator's notes\n"
+
+
+@pytest.mark.asyncio
+async def test_a_socket_replaced_after_start_is_not_removed_by_close(tmp_path):
+    """The path now names another daemon's socket (ours was removed by hand and a second
+    daemon started): stopping the first must not take the second's socket."""
+    path = tmp_path / "s.sock"
+    bus = EventBus()
+    first = ControlServer(path, make_registry(), bus, 4096)
+    second = ControlServer(path, make_registry(), bus, 4096)
+    async with asyncio.timeout(5):
+        await first.start()
+        path.unlink()
+        await second.start()
+        await first.close()
+        assert stat.S_ISSOCK(path.lstat().st_mode)
+        await second.close()
+    assert not path.exists()
 
 
 @pytest.mark.asyncio
