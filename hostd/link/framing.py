@@ -13,6 +13,11 @@ CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f]")
 
 
 FOLD_BYTES = 128  # longest text folded at once; Marlin's lines are at most 96 bytes
+MAX_CMD_SIZE = 96  # Marlin's line buffer (Configuration_adv.h), its terminator included
+COMMAND_MAX = MAX_CMD_SIZE - 1 - len("N9999999 ") - len("*255")
+"""Longest command (82 characters) that still fits the firmware's buffer once framed with a
+line number of up to seven digits and its checksum. Marlin drops the characters past its
+buffer, so a longer line fails its checksum on every resend and the print stalls."""
 
 
 def checksum(text: str) -> int:

@@ -13,7 +13,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
-from hostd.link.framing import CONTROL, strip_gcode
+from hostd.link.framing import COMMAND_MAX, CONTROL, MAX_CMD_SIZE, strip_gcode
 from hostd.printer.errors import ProgramError
 from hostd.printer.modal import ModalState
 
@@ -137,7 +137,21 @@ def parse_program(text: str) -> Program:
         prog.source_lines.append(lineno)
     if open_tr is not None:
         raise ProgramError(f"line {open_tr['line']}: HOSTD_TRANSITION without an END")
+    _check_lengths(prog)
     return prog
+
+
+def _check_lengths(prog: Program) -> None:
+    """Refuse a command longer than :data:`~hostd.link.framing.COMMAND_MAX` (the firmware
+    would truncate it, and its checksum would fail on every resend)."""
+    if max(map(len, prog.commands), default=0) <= COMMAND_MAX:
+        return
+    at = next(i for i, cmd in enumerate(prog.commands) if len(cmd) > COMMAND_MAX)
+    cmd = prog.commands[at]
+    raise ProgramError(
+        f"line {prog.source_lines[at]}: command of {len(cmd)} characters ({cmd[:24]}...) is "
+        f"longer than the firmware's line buffer takes ({COMMAND_MAX} with its line number "
+        f"and checksum, Marlin MAX_CMD_SIZE {MAX_CMD_SIZE}); comments do not count")
 
 
 def _marker(prog: Program, text: str, lineno: int, open_tr: dict[str, Any] | None,

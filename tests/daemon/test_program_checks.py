@@ -87,3 +87,18 @@ def test_the_screen_never_spares_a_file_a_closer_look_would_refuse(lines: list[s
     except ProgramError as exc:
         got = str(exc)
     assert got == expected
+
+
+def test_a_command_longer_than_the_firmware_buffer_is_refused_with_its_line():
+    """Marlin keeps MAX_CMD_SIZE - 1 characters of a line and drops the rest: a longer
+    command fails its checksum on every resend and the print stalls."""
+    from hostd.link.framing import COMMAND_MAX, MAX_CMD_SIZE, frame
+
+    longest = "M117 " + "x" * (COMMAND_MAX - 5)
+    assert len(frame(9_999_999, longest)) <= MAX_CMD_SIZE - 1  # fits, framed
+    long_comment = "G1 X1 ; " + "c" * 200  # comments are not sent
+    assert parse_program(f"G28\n{longest}\n{long_comment}\n").commands[1] == longest
+    with pytest.raises(ProgramError) as err:
+        parse_program(f"G28\n{longest}\n{longest}y\n")
+    assert f"line 3: command of {COMMAND_MAX + 1} characters" in str(err.value)
+    assert "MAX_CMD_SIZE 96" in str(err.value)
