@@ -2,8 +2,9 @@
 
 One worker process (:class:`hostd.worker_process.WorkerProcess`: spawned, so it shares
 nothing with the daemon's threads) imports the slicer; the daemon itself never imports numpy
-or trimesh. Results are cached on disk by ``sha256(STL) + sha256(profile)``
-(:class:`hostd.slice_cache.SliceCache`).
+or trimesh. Results are cached on disk by ``sha256(STL) + sha256(profile + slicer code)``
+(:class:`hostd.slice_cache.SliceCache`): an upgraded slicer never serves G-code an older one
+wrote.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import os
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +29,8 @@ log = logging.getLogger(__name__)
 
 PROFILE_SECTIONS = ("machine", "printhead", "process", "decompose")
 """Config sections that change the sliced output (and so the cache key)."""
+CODE_PACKAGES = ("slicer", "kinematics")
+"""Packages whose source changes the sliced output (and so the cache key)."""
 
 
 class SliceError(Exception):
@@ -46,9 +50,26 @@ def profile_of(values: Mapping[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in sorted(values.items()) if k.split(".", 1)[0] in PROFILE_SECTIONS}
 
 
-def cache_key(stl_sha: str, profile: Mapping[str, Any]) -> str:
+def cache_key(stl_sha: str, profile: Mapping[str, Any], code: str | None = None) -> str:
+    """The cache entry of an STL (its sha256) sliced with ``profile`` by slicer ``code``
+    (:func:`code_digest` by default)."""
     blob = json.dumps(profile, sort_keys=True, default=list).encode()
-    return f"{stl_sha}-{hashlib.sha256(blob).hexdigest()[:32]}"
+    digest = hashlib.sha256(blob)
+    digest.update((code if code is not None else code_digest()).encode())
+    return f"{stl_sha}-{digest.hexdigest()[:32]}"
+
+
+@cache
+def code_digest() -> str:
+    """sha256 of the slicer's source (:data:`CODE_PACKAGES`, every ``.py`` by path), read
+    once per process: a fix in the slicer makes every cached result a miss."""
+    root = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha256()
+    for package in CODE_PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+            digest.update(path.read_bytes())
+    return digest.hexdigest()
 
 
 def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str) -> dict[str, Any]:

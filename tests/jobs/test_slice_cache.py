@@ -60,3 +60,18 @@ def test_no_temporary_file_is_left_behind(tmp_path: Path):
     cache.store(KEY, {"subparts": 3})
     assert cache.lookup(KEY) == {"subparts": 3, SIZE_KEY: len(GCODE)}
     assert not [p for p in cache.root.iterdir() if p.suffix == ".tmp"]
+
+
+def test_the_key_changes_with_the_profile_and_with_the_slicer_code(tmp_path: Path):
+    """A cached file from an older slicer (say, one with a G-code bug since fixed) must not
+    be served after an upgrade: the slicer's source is part of the key."""
+    from hostd.slicing_worker import cache_key, code_digest
+
+    profile = {"process.layer_height": 0.2}
+    key = cache_key("f" * 64, profile)
+    assert key == cache_key("f" * 64, dict(profile))  # stable
+    assert key == cache_key("f" * 64, profile, code_digest())
+    assert key != cache_key("f" * 64, {"process.layer_height": 0.3})
+    assert key != cache_key("f" * 64, profile, code="0" * 64)  # another slicer
+    assert key.startswith("f" * 64 + "-")
+    assert len(code_digest()) == 64 and code_digest() == code_digest()
