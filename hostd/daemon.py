@@ -29,6 +29,7 @@ from hostd import __version__
 from hostd.config import Config
 from hostd.control.endpoints import build_registry
 from hostd.control.events import EventBus
+from hostd.control.rpc import PrinterBusy
 from hostd.control.server import ControlError, ControlServer
 from hostd.jobs.manager import JobManager
 from hostd.jobs.spool import Spool
@@ -42,6 +43,7 @@ from hostd.printer.streamer import StreamSettings
 from hostd.sdnotify import listen_fds, notify, watchdog_interval
 from hostd.sim.settings import sim_settings_from_config
 from hostd.slicing_worker import SlicingWorker
+from hostd.state_lock import StateLock, StateLockError
 
 log = logging.getLogger("hostd")
 
@@ -105,6 +107,7 @@ class Daemon:
         self._tasks: list[asyncio.Task[None]] = []
         self._jobs: JobManager | None = None
         self._status_line = ""
+        self._lock = StateLock(self.state_dir)
 
     @property
     def jobs(self) -> JobManager:
@@ -114,17 +117,18 @@ class Daemon:
     async def start(self) -> None:
         try:
             self.state_dir.mkdir(parents=True, exist_ok=True)
+            self._lock.acquire()
             self.store = JobStore(self.state_dir / "jobs.db")
             spool = Spool(self.state_dir / "spool", self.config["daemon.max_upload_bytes"])
             self.worker = SlicingWorker(self.state_dir / "cache", self.config.values)
-        except StoreError as exc:
+        except (StoreError, StateLockError) as exc:
             raise DaemonError(str(exc)) from None
         except OSError as exc:
             raise DaemonError(f"daemon.state_dir: cannot use {exc.filename or self.state_dir}:"
                               f" {exc.strerror or exc}") from None
         self._jobs = JobManager(self.store, spool, self.worker, lambda: LinkPort(self.link),
                                 self.bus, stream_settings(self.config),
-                                envelope_from_config(self.config.values))
+                                envelope_from_config(self.config.values), printer=self.link)
         self.server = ControlServer(
             self.config["daemon.socket"], build_registry(self), self.bus,
             max_message=self.config["daemon.max_upload_bytes"] * 4 // 3 + MESSAGE_OVERHEAD)
@@ -256,6 +260,18 @@ class Daemon:
         with contextlib.suppress(LinkError):  # the link's own state and log tell of it
             await self.link.query("M105")
 
+    async def firmware_restart(self) -> dict[str, Any]:
+        """Reset the firmware and reconnect (after a halt); refused while a job is on the
+        printer (printing or paused: its position would be lost)."""
+        act = self.jobs.active
+        if act is not None:
+            raise PrinterBusy(f"refused: job {act.job.id} is on the printer "
+                              f"({act.streamer.state}); cancel it first")
+        await self.link.restart()
+        self.bus.publish("printer.state", {"state": "ready", "reason": "firmware restart"})
+        self._notify_status()
+        return {"link": self.link.status()["state"]}
+
     async def emergency_stop(self) -> None:
         log.warning("emergency stop requested")
         self.link.emergency_stop()
@@ -300,6 +316,7 @@ class Daemon:
             self.metrics.stop()
         if self.store is not None:
             self.store.close()
+        self._lock.release()
 
     def snapshot(self) -> dict[str, Any]:
         """Every component's ``status()`` (plain JSON)."""

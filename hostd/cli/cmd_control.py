@@ -1,5 +1,5 @@
 """hostctl verbs that talk to the daemon: print, status, jobs, pause, resume, cancel, send,
-estop, watch.
+estop, firmware-restart, watch.
 
 Exit codes (see :mod:`hostd.cli.errors`): 0 ok, 1 the job failed/was cancelled/interrupted,
 2 bad arguments or input file, 3 daemon unreachable, 4 the daemon refused the request.
@@ -69,6 +69,9 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
     p = subparsers.add_parser("estop", help="emergency stop (M112)")
     p.set_defaults(func=cmd_estop)
+    p = subparsers.add_parser("firmware-restart",
+                              help="reset the firmware and reconnect (after estop or a halt)")
+    p.set_defaults(func=cmd_firmware_restart)
 
     p = subparsers.add_parser("watch", help="print the daemon's event stream")
     p.add_argument("--json", action="store_true")
@@ -314,6 +317,13 @@ def cmd_estop(args: argparse.Namespace) -> int:
     with _client(args) as c:
         c.call("printer.estop")
     print("emergency stop sent")
+    return EXIT_OK
+
+
+def cmd_firmware_restart(args: argparse.Namespace) -> int:
+    with _client(args, timeout=120.0) as c:
+        res = c.call("printer.firmware_restart")
+    print(f"firmware restarted: link {res['link']}")
     return EXIT_OK
 
 

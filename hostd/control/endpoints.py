@@ -72,6 +72,9 @@ def build_registry(d: Daemon) -> Registry:
         replies = [_reply(await d.link.query(c)) for c in commands]
         return {"commands": commands, "replies": replies}
 
+    async def printer_firmware_restart(ctx: Client) -> dict[str, Any]:
+        return await d.firmware_restart()
+
     async def printer_estop(ctx: Client) -> dict[str, Any]:
         await d.emergency_stop()
         return {"stopped": True}
@@ -152,6 +155,8 @@ def build_registry(d: Daemon) -> Registry:
     reg.add("printer.gcode", printer_gcode, Param("script", "str"),
             doc="run raw G-code lines (only a safe set while printing)")
     reg.add("printer.estop", printer_estop, doc="M112 now; the current job fails")
+    reg.add("printer.firmware_restart", printer_firmware_restart,
+            doc="reset the firmware (port reopened) and reconnect; refused with a job on it")
     reg.add("job.submit", job_submit, Param("name", "str"),
             Param("data", "str", required=False, doc="the file (else the job.upload parts)"),
             Param("kind", "str", required=False, choices=("stl", "gcode")),

@@ -14,7 +14,7 @@ import time
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from hostd.control.events import EventBus
 from hostd.control.rpc import PrinterBusy, ShuttingDown
@@ -37,6 +37,15 @@ PERSIST_INTERVAL = 0.25  # s between progress writes (also at every layer change
 EVENT_INTERVAL = 0.2  # s between progress events
 RESUME_SCOPES = ("checkpoint", "subpart", "layer")
 STOPPED = TERMINAL | {JobState.INTERRUPTED}  # states a job.wait returns at
+
+
+class Readiness(Protocol):
+    """Whether the printer takes lines (the serial link): a job starts only when it does."""
+
+    @property
+    def connected(self) -> bool: ...
+
+    async def wait_connected(self) -> None: ...
 
 
 @dataclass
@@ -68,8 +77,10 @@ class JobManager:
 
     def __init__(self, store: JobStore, spool: Spool, worker: SlicingWorker | None,
                  port_factory: Callable[[], Port], bus: EventBus,
-                 settings: StreamSettings, envelope: Envelope | None = None) -> None:
+                 settings: StreamSettings, envelope: Envelope | None = None,
+                 printer: Readiness | None = None) -> None:
         self.store = store
+        self.printer = printer
         self.spool = spool
         self.worker = worker
         self.checker = FileChecker(envelope)  # whole-file checks, off the loop's GIL
@@ -92,6 +103,7 @@ class JobManager:
         self._last: dict[str, Any] | None = None  # figures of the last job that printed
         self._checkpoint: asyncio.Task[None] | None = None  # the database's, on a thread
         self.checkpoints = 0
+        self.waiting_for_printer = False  # a job is ready but the link is down or halted
 
     # -- life cycle ------------------------------------------------------------------------
 
@@ -301,14 +313,36 @@ class JobManager:
             await self._wake_print.wait()
             self._wake_print.clear()
             while True:
+                if self._resume_request is None and self.store.first(JobState.READY) is None:
+                    break
+                if not await self._printer_ready():
+                    continue  # the queue may have changed while the printer was away
                 if self._resume_request is not None:
                     job_id, scope = self._resume_request
                     await self._contained(job_id, self._run_resumed(job_id, scope))
                     continue
                 job = self.store.first(JobState.READY)
-                if job is None:
-                    break
-                await self._contained(job.id, self._run(job, 0, None, []))
+                if job is not None:
+                    await self._contained(job.id, self._run(job, 0, None, []))
+
+    async def _printer_ready(self) -> bool:
+        """Whether the printer takes lines now; if not, wait until it does and say no.
+
+        A job is not started on a link that is down (reconnecting) or halted (M112, a
+        firmware kill): it would fail at once, and the whole queue after it. The jobs wait,
+        ``ready``, until the link is back (``hostctl firmware-restart`` after a halt)."""
+        if self.printer is None or self.printer.connected:
+            return True
+        log.warning("printer not ready: queued jobs wait for the serial link")
+        self.waiting_for_printer = True
+        self.bus.publish("printer.state", {"state": "waiting", "reason": "jobs wait for the "
+                                           "serial link (down or halted)"})
+        try:
+            await self.printer.wait_connected()
+        finally:
+            self.waiting_for_printer = False
+        log.info("printer ready: the queue goes on")
+        return False
 
     async def _contained(self, job_id: int, run: Coroutine[Any, Any, None]) -> None:
         """Run one job; an unexpected error (a bug) fails that job, not the queue."""
@@ -584,6 +618,7 @@ class JobManager:
                 "transitions": dict(self.transitions), "current": current,
                 "latest": None if latest is None else dict(latest),
                 "recovered": list(self.recovered), "db_checkpoints": self.checkpoints,
+                "waiting_for_printer": self.waiting_for_printer,
                 "file_checks": self.checker.status()}
 
 

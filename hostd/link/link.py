@@ -109,8 +109,26 @@ class SerialLink:
         self._drop_connection()
 
     async def wait_connected(self) -> None:
-        """Wait until the link is connected (after a reset or a reconnect)."""
-        await self._connected.wait()
+        """Wait until the link is connected (after a reset, a reconnect or a restart)."""
+        while not self.connected:
+            self._connected.clear()  # not ready: only the next Connected may set it
+            await self._connected.wait()
+
+    async def restart(self) -> None:
+        """Reset the firmware and handshake again: how a halted printer (M112, a firmware
+        kill, a link too noisy to go on) comes back without restarting hostd.
+
+        The port is closed and opened again; opening a serial port drops DTR, which resets an
+        Arduino-class board (the emulator starts afresh). Raises :class:`LinkLost` as
+        :meth:`connect` does.
+        """
+        if self._reconnect_task is not None:
+            self._reconnect_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._reconnect_task
+        self._connected.clear()
+        log.warning("%s: firmware restart (port reopened)", self.settings.port)
+        await self.connect()
 
     @property
     def connected(self) -> bool:

@@ -77,6 +77,9 @@ async def test_pause_resume_then_cancel_mid_print(daemon_factory):
             await c.call("printer.gcode", script="G28")
         assert err.value.code == -32004 and "refused while printing" in err.value.message
         assert (await c.call("printer.gcode", script="M105"))["commands"] == ["M105"]
+        with pytest.raises(RpcCallError) as err:  # would stall the firmware's checksum
+            await c.call("printer.gcode", script="M117 " + "x" * 120)
+        assert err.value.code == -32602 and "line buffer" in err.value.message
         cancelled = await c.call("job.cancel", id=job["id"])
         assert cancelled["state"] == "cancelled"
         cmds = executed((await c.call("sim.log"))["commands"])
