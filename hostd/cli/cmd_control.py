@@ -250,8 +250,22 @@ def cmd_status(args: argparse.Namespace) -> int:
             print(f"  paused: {cur['pause_reason']}")
     else:
         print("no job printing")
+        _print_last(jobs.get("latest"))
     print(f"queue: {jobs.get('queue_length', 0)} waiting")
+    if jobs.get("waiting_for_printer"):
+        print(f"  held: the printer is not ready (link {link.get('state', '?')}); after an "
+              "estop or a halt: hostctl firmware-restart")
     return EXIT_OK
+
+
+def _print_last(last: dict[str, Any] | None) -> None:
+    """The last job that printed, when it needs the operator (interrupted or failed)."""
+    if not last or last.get("state") not in ("interrupted", "failed"):
+        return
+    print(f"last job {last['id']} {last['state']} at line {last['acked']}/{last['total']}"
+          f" (sub-part {last['subpart']}, layer {last['layer']})")
+    if last["state"] == "interrupted":
+        print(f"  resume: hostctl resume {last['id']} [--from layer|subpart]")
 
 
 def _count(text: str) -> int:

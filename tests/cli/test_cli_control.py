@@ -146,3 +146,41 @@ async def test_status_shows_the_link_trouble_of_a_noisy_line(tmp_path):
     assert rc == rc_json == 0 and link["resend_requests"] > 0
     (line,) = [ln for ln in out.splitlines() if "link trouble" in ln]
     assert f"{link['resend_requests']} resend request" in line
+
+
+@pytest.mark.asyncio
+async def test_status_after_an_estop_and_firmware_restart(tmp_path):
+    """An estop mid-print: status names the failed job and its line; a job queued meanwhile
+    is held (said so, with the way out); firmware-restart brings the board back and the held
+    job prints."""
+    d = DaemonProc(tmp_path, sim__throttle=True)
+    long = tmp_path / "long.gcode"
+    long.write_text(make_gcode(subparts=1, layers=20, per_layer=200))
+    short = tmp_path / "short.gcode"
+    short.write_text(make_gcode(subparts=1, layers=2, per_layer=20))
+    async with asyncio.timeout(90):
+        await d.start()
+        try:
+            watcher = await d.rpc()
+            await watcher.call("events.subscribe")
+            rc, out, _ = await hostctl(d.socket, "print", str(long), "--json")
+            await watcher.until(lambda e: e["event"] == "job.progress" and e["acked"] > 10)
+            rc, out, _ = await hostctl(d.socket, "estop")
+            assert rc == 0 and "emergency stop sent" in out
+            await watcher.until_state(1, "failed")
+            rc, out, _ = await hostctl(d.socket, "print", str(short), "--json")
+            assert rc == 0 and json.loads(out)["state"] == "ready"
+            await watcher.until(lambda e: e["event"] == "printer.state"
+                                and e["state"] == "waiting")
+            rc, out, _ = await hostctl(d.socket, "status")
+            assert rc == 0 and "link: halted" in out
+            assert "last job 1 failed at line " in out
+            assert "held: the printer is not ready" in out and "firmware-restart" in out
+            rc, out, err = await hostctl(d.socket, "firmware-restart")
+            assert rc == 0 and out.strip() == "firmware restarted: link ready", err
+            assert (await watcher.call("job.wait", id=2))["state"] == "completed"
+            rc, out, _ = await hostctl(d.socket, "status")
+            assert "held:" not in out and "link: ready" in out
+            await watcher.close()
+        finally:
+            await d.stop()
