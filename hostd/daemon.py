@@ -128,7 +128,8 @@ class Daemon:
                               f" {exc.strerror or exc}") from None
         self._jobs = JobManager(self.store, spool, self.worker, lambda: LinkPort(self.link),
                                 self.bus, stream_settings(self.config),
-                                envelope_from_config(self.config.values), printer=self.link)
+                                envelope_from_config(self.config.values), printer=self.link,
+                                hold_after_print=self.config["daemon.next_job"] == "after_clear")
         self.server = ControlServer(
             self.config["daemon.socket"], build_registry(self), self.bus,
             max_message=self.config["daemon.max_upload_bytes"] * 4 // 3 + MESSAGE_OVERHEAD)

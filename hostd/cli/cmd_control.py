@@ -10,13 +10,14 @@ from __future__ import annotations
 import argparse
 import base64
 import json
+import stat
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from hostd.cli.client import Client, socket_path
-from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, CliError
+from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_REFUSED, EXIT_USAGE, CliError
 
 FINAL = {"completed", "failed", "cancelled", "interrupted"}
 PART_BYTES = 3 << 16
@@ -56,9 +57,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
 
     p = subparsers.add_parser("resume", help="resume a paused or interrupted job")
     p.add_argument("id", nargs="?", type=int)
-    p.add_argument("--from", dest="scope", default="checkpoint",
-                   choices=("checkpoint", "subpart", "layer"),
-                   help="for an interrupted job: where to restart (default: last checkpoint)")
+    p.add_argument("--from", dest="scope", default=None,
+                   choices=("layer", "subpart", "checkpoint"),
+                   help="for an interrupted job: restart at the start of its layer (default), "
+                        "of its sub-part, or at its last checkpoint (these two print again "
+                        "the layers of the sub-part already done)")
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_resume)
 
@@ -72,6 +75,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p = subparsers.add_parser("firmware-restart",
                               help="reset the firmware and reconnect (after estop or a halt)")
     p.set_defaults(func=cmd_firmware_restart)
+
+    p = subparsers.add_parser("queue", help="show the queue hold, or start/hold the queue "
+                              "(start: the platform is clear, the next job may print)")
+    p.add_argument("action", nargs="?", choices=("start", "hold"))
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_queue)
 
     p = subparsers.add_parser("watch", help="print the daemon's event stream")
     p.add_argument("--json", action="store_true")
@@ -88,11 +97,16 @@ def _emit_json(data: Any) -> None:
 
 def cmd_print(args: argparse.Namespace) -> int:
     path = Path(args.file)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise CliError(f"{path}: {exc.strerror or exc}", EXIT_USAGE) from None
+    size = _upload_size(path)
     with _client(args, timeout=600.0) as c:
+        limit = c.call("server.info").get("max_upload_bytes")
+        if isinstance(limit, int) and size > limit:  # before reading a file of any size
+            raise CliError(f"{path}: {size} bytes exceeds the limit of {limit} bytes "
+                           "(daemon.max_upload_bytes)", EXIT_REFUSED)
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise CliError(f"{path}: {exc.strerror or exc}", EXIT_USAGE) from None
         if args.wait:
             c.call("events.subscribe", events=["job.state", "job.progress", "job.subpart",
                                                "subpart_started", "transition_failed"])
@@ -103,9 +117,31 @@ def cmd_print(args: argparse.Namespace) -> int:
                 _emit_json(job)
             else:
                 print(f"job {job['id']} {job['state']}: {job['name']}")
+                _say_held(c)
             return EXIT_OK
+        if not args.json:
+            _say_held(c)
         final = _follow(c, job, args.json)
     return EXIT_OK if final == "completed" else EXIT_FAILED
+
+
+def _upload_size(path: Path) -> int:
+    """Size of the regular file at ``path``; :class:`CliError` (exit 2) naming it if it is
+    missing, unreadable or not a regular file (a directory, a pipe, a device)."""
+    try:
+        st = path.stat()
+    except OSError as exc:
+        raise CliError(f"{path}: {exc.strerror or exc}", EXIT_USAGE) from None
+    if not stat.S_ISREG(st.st_mode):
+        raise CliError(f"{path}: not a regular file", EXIT_USAGE)
+    return st.st_size
+
+
+def _say_held(c: Client) -> None:
+    """One line when the job will not start yet because the queue is held."""
+    queue = c.call("queue.status")
+    if queue.get("held"):
+        print(f"queue held: {queue.get('reason')}", flush=True)
 
 
 def _submit(c: Client, name: str, data: bytes,
@@ -158,7 +194,7 @@ def _follow(c: Client, job: dict[str, Any], as_json: bool) -> str:
                 bar.line_break(f"job {job_id} {data['new']}: {data.get('reason', '')}")
                 if data["new"] == "interrupted":
                     bar.line_break(f"resume it with: hostctl resume {job_id} "
-                                   "[--from checkpoint|subpart|layer]")
+                                   "[--from layer|subpart|checkpoint]")
             if data["new"] in FINAL:
                 return str(data["new"])
         elif event == "job.progress" and not as_json:
@@ -252,6 +288,9 @@ def cmd_status(args: argparse.Namespace) -> int:
         print("no job printing")
         _print_last(jobs.get("latest"))
     print(f"queue: {jobs.get('queue_length', 0)} waiting")
+    queue = jobs.get("queue") or {}
+    if queue.get("held"):
+        print(f"  held: {queue.get('reason')}")
     if jobs.get("waiting_for_printer"):
         print(f"  held: the printer is not ready (link {link.get('state', '?')}); after an "
               "estop or a halt: hostctl firmware-restart")
@@ -265,7 +304,7 @@ def _print_last(last: dict[str, Any] | None) -> None:
     print(f"last job {last['id']} {last['state']} at line {last['acked']}/{last['total']}"
           f" (sub-part {last['subpart']}, layer {last['layer']})")
     if last["state"] == "interrupted":
-        print(f"  resume: hostctl resume {last['id']} [--from layer|subpart]")
+        print(f"  resume: hostctl resume {last['id']} [--from layer|subpart|checkpoint]")
 
 
 def _count(text: str) -> int:
@@ -338,6 +377,21 @@ def cmd_firmware_restart(args: argparse.Namespace) -> int:
     with _client(args, timeout=120.0) as c:
         res = c.call("printer.firmware_restart")
     print(f"firmware restarted: link {res['link']}")
+    return EXIT_OK
+
+
+def cmd_queue(args: argparse.Namespace) -> int:
+    method = {"start": "queue.start", "hold": "queue.hold"}.get(args.action, "queue.status")
+    with _client(args) as c:
+        queue = c.call(method)
+    if args.json:
+        _emit_json(queue)
+        return EXIT_OK
+    if queue["held"]:
+        print(f"queue held: {queue['reason']}")
+    else:
+        print("queue runs: the next ready job starts when the printer is free")
+    print(f"  {queue['ready']} job(s) ready; daemon.next_job: {queue['next_job']}")
     return EXIT_OK
 
 

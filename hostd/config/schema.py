@@ -170,6 +170,10 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                    lo=1024, hi=2**34, integer=True),
         "log_level": Text("Logging level.", "info", choices=("debug", "info", "warning",
                                                                "error")),
+        "next_job": Text("When the next queued job starts: after_clear holds the queue once "
+                         "a job has left a part on the platform, until hostctl queue start; "
+                         "at_once starts it right away (an empty platform each time).",
+                         "after_clear", choices=("after_clear", "at_once")),
     },
     "metrics": {
         "enabled": Flag("Serve Prometheus metrics.", True),

@@ -75,6 +75,15 @@ def build_registry(d: Daemon) -> Registry:
     async def printer_firmware_restart(ctx: Client) -> dict[str, Any]:
         return await d.firmware_restart()
 
+    async def queue_status(ctx: Client) -> dict[str, Any]:
+        return d.jobs.queue_status()
+
+    async def queue_start(ctx: Client) -> dict[str, Any]:
+        return d.jobs.queue_start()
+
+    async def queue_hold(ctx: Client) -> dict[str, Any]:
+        return d.jobs.queue_hold()
+
     async def printer_estop(ctx: Client) -> dict[str, Any]:
         await d.emergency_stop()
         return {"stopped": True}
@@ -121,7 +130,7 @@ def build_registry(d: Daemon) -> Registry:
     async def job_pause(ctx: Client, id: int | None, wait: bool) -> dict[str, Any]:
         return d.jobs.job_dict(await d.jobs.pause(_current(d, id), wait))
 
-    async def job_resume(ctx: Client, id: int | None, scope: str) -> dict[str, Any]:
+    async def job_resume(ctx: Client, id: int | None, scope: str | None) -> dict[str, Any]:
         target = id if id is not None else _resumable(d)
         return d.jobs.job_dict(await d.jobs.resume(target, scope))
 
@@ -157,6 +166,10 @@ def build_registry(d: Daemon) -> Registry:
     reg.add("printer.estop", printer_estop, doc="M112 now; the current job fails")
     reg.add("printer.firmware_restart", printer_firmware_restart,
             doc="reset the firmware (port reopened) and reconnect; refused with a job on it")
+    reg.add("queue.status", queue_status, doc="whether new jobs may start, and why not")
+    reg.add("queue.start", queue_start,
+            doc="the platform is clear: lift the hold, the next ready job starts")
+    reg.add("queue.hold", queue_hold, doc="start no new job until queue.start")
     reg.add("job.submit", job_submit, Param("name", "str"),
             Param("data", "str", required=False, doc="the file (else the job.upload parts)"),
             Param("kind", "str", required=False, choices=("stl", "gcode")),
@@ -172,9 +185,11 @@ def build_registry(d: Daemon) -> Registry:
     reg.add("job.get", job_get, jid, doc="one job with history and checkpoints")
     reg.add("job.pause", job_pause, jid, wait, doc="pause after the acknowledged line")
     reg.add("job.resume", job_resume, jid,
-            Param("from", "str", required=False, default="checkpoint",
-                  choices=("checkpoint", "subpart", "layer")),
-            doc="resume a paused job, or an interrupted one from a checkpoint/sub-part/layer")
+            Param("from", "str", required=False, default=None,
+                  choices=("layer", "subpart", "checkpoint"),
+                  doc="interrupted jobs only (default layer)"),
+            doc="resume a paused job (once it prints again), or an interrupted one from the "
+                "start of its layer (default), sub-part or last checkpoint")
     reg.add("job.cancel", job_cancel, jid, wait, doc="stop and run the end script")
     reg.add("job.delete", job_delete, Param("id", "int"), doc="forget a finished job")
     reg.add("job.wait", job_wait, Param("id", "int"),

@@ -35,8 +35,13 @@ _TROUBLE = (JobState.FAILED, JobState.INTERRUPTED)  # logged as warnings: the op
 
 PERSIST_INTERVAL = 0.25  # s between progress writes (also at every layer change)
 EVENT_INTERVAL = 0.2  # s between progress events
-RESUME_SCOPES = ("checkpoint", "subpart", "layer")
+RESUME_SCOPES = ("layer", "subpart", "checkpoint")
+DEFAULT_SCOPE = "layer"
+"""Where an interrupted job resumes by default: the start of the layer it stopped in (at most
+that layer is printed twice over). A sub-part or checkpoint restart prints again every layer
+of the sub-part done so far, on top of themselves: the operator's choice, never a default."""
 STOPPED = TERMINAL | {JobState.INTERRUPTED}  # states a job.wait returns at
+HOLD_KEY = "queue_hold"  # store setting: why the queue is held (absent: it runs)
 
 
 class Readiness(Protocol):
@@ -78,9 +83,13 @@ class JobManager:
     def __init__(self, store: JobStore, spool: Spool, worker: SlicingWorker | None,
                  port_factory: Callable[[], Port], bus: EventBus,
                  settings: StreamSettings, envelope: Envelope | None = None,
-                 printer: Readiness | None = None) -> None:
+                 printer: Readiness | None = None, hold_after_print: bool = False) -> None:
         self.store = store
         self.printer = printer
+        self.hold_after_print = hold_after_print
+        self.hold_reason: str | None = store.setting(HOLD_KEY)
+        """Why no new job starts (a printed part on the platform), or ``None``: persisted,
+        lifted by :meth:`queue_start` (``hostctl queue start``)."""
         self.spool = spool
         self.worker = worker
         self.checker = FileChecker(envelope)  # whole-file checks, off the loop's GIL
@@ -95,6 +104,7 @@ class JobManager:
         self._resume_request: tuple[int, str] | None = None
         self._done: dict[int, asyncio.Event] = {}
         self._paused_evt: dict[int, asyncio.Event] = {}
+        self._left: dict[int, asyncio.Event] = {}  # resume() waits for the job's next state
         self.counts = store.counts()  # jobs per state, kept in memory (status() is a read)
         self.finished = {s: self.counts[s] for s in ("completed", "failed", "cancelled",
                                                        "interrupted")}
@@ -110,6 +120,8 @@ class JobManager:
     def start(self) -> None:
         for job in self.store.recover():
             self.recovered.append(job.id)
+            if job.state is JobState.INTERRUPTED and job.filament_mm > 0:
+                self._hold_for(job.id, "was interrupted when hostd stopped")
             if job.state is JobState.INTERRUPTED:
                 self.finished["interrupted"] += 1
             log.warning("job %d %s: %s", job.id, job.state, job.reason)
@@ -145,6 +157,8 @@ class JobManager:
             if job.state in (JobState.PRINTING, JobState.PAUSED):
                 self._set_state(job.id, JobState.INTERRUPTED,
                                 f"{reason} at line {act.streamer.acked}")
+                if act.streamer.modal.extruded > 0:
+                    self._hold_for(job.id, "was interrupted when hostd stopped")
             self._finish_active(act)
         self.checker.close()
 
@@ -195,21 +209,34 @@ class JobManager:
             await self._wait_paused_or_done(job_id, evt)
         return self.store.get(job_id)
 
-    async def resume(self, job_id: int, scope: str = "checkpoint") -> Job:
+    async def resume(self, job_id: int, scope: str | None = None) -> Job:
+        """Resume a paused job, or restart an interrupted one from ``scope`` (default
+        :data:`DEFAULT_SCOPE`); returns the job once it has left that state (printing, or
+        failed when it could not be resumed)."""
         job = self.store.get(job_id)
-        if job.state is JobState.PAUSED and self.active and self.active.job.id == job_id:
-            self.active.streamer.request_resume()
-            return job
-        if job.state is not JobState.INTERRUPTED:
+        paused = job.state is JobState.PAUSED and self.active and self.active.job.id == job_id
+        if paused and scope is not None:
+            raise JobStateError(f"job {job_id} is paused: it goes on from its next line "
+                                "(from is for interrupted jobs)")
+        if not paused and job.state is not JobState.INTERRUPTED:
             raise JobStateError(f"job {job_id} is {job.state}; only paused or interrupted jobs "
                                 "resume")
+        scope = scope or DEFAULT_SCOPE
         if scope not in RESUME_SCOPES:
             raise JobStateError(f"resume from {scope!r}: use one of {', '.join(RESUME_SCOPES)}")
-        if self.active is not None or self._resume_request is not None:
+        if not paused and (self.active is not None or self._resume_request is not None):
             raise PrinterBusy("another job is on the printer")
-        self._resume_request = (job_id, scope)
-        self._wake_print.set()
-        return job
+        if self.printer is not None and not self.printer.connected:
+            raise PrinterBusy("the printer is not ready (serial link down or halted): wait for "
+                              "it to reconnect, or hostctl firmware-restart after a halt")
+        left = self._left.setdefault(job_id, asyncio.Event())
+        if paused:
+            self.active.streamer.request_resume()
+        else:
+            self._resume_request = (job_id, scope)
+            self._wake_print.set()
+        await left.wait()
+        return self.store.get(job_id)
 
     async def cancel(self, job_id: int, wait: bool = True) -> Job:
         job = self.store.get(job_id)
@@ -313,7 +340,7 @@ class JobManager:
             await self._wake_print.wait()
             self._wake_print.clear()
             while True:
-                if self._resume_request is None and self.store.first(JobState.READY) is None:
+                if self._resume_request is None and not self._next_ready():
                     break
                 if not await self._printer_ready():
                     continue  # the queue may have changed while the printer was away
@@ -321,9 +348,49 @@ class JobManager:
                     job_id, scope = self._resume_request
                     await self._contained(job_id, self._run_resumed(job_id, scope))
                     continue
-                job = self.store.first(JobState.READY)
+                job = self.store.first(JobState.READY) if self._next_ready() else None
                 if job is not None:
                     await self._contained(job.id, self._run(job, 0, None, []))
+
+    def _next_ready(self) -> bool:
+        """Whether a new job may start: one is ready and the queue is not held."""
+        return self.hold_reason is None and self.store.first(JobState.READY) is not None
+
+    # -- the queue hold --------------------------------------------------------------------
+
+    def queue_start(self) -> dict[str, Any]:
+        """The operator cleared the platform: the next ready job may start."""
+        self._set_hold(None)
+        self._wake_print.set()
+        return self.queue_status()
+
+    def queue_hold(self) -> dict[str, Any]:
+        """No new job starts until :meth:`queue_start` (the job printing goes on)."""
+        if self.hold_reason is None:
+            self._set_hold("held by the operator")
+        return self.queue_status()
+
+    def queue_status(self) -> dict[str, Any]:
+        return {"held": self.hold_reason is not None, "reason": self.hold_reason,
+                "ready": self.counts[JobState.READY.value],
+                "next_job": "after_clear" if self.hold_after_print else "at_once"}
+
+    def _hold_for(self, job_id: int, how: str) -> None:
+        """After job ``job_id`` left a part on the platform (``daemon.next_job:
+        after_clear``), hold the queue until the operator clears it."""
+        if not self.hold_after_print:
+            return
+        todo = ("resume it, or clear the platform and run hostctl queue start"
+                if "interrupted" in how else "clear the platform, then hostctl queue start")
+        self._set_hold(f"job {job_id} {how}: {todo}")
+
+    def _set_hold(self, reason: str | None) -> None:
+        if reason == self.hold_reason:
+            return
+        self.store.set_setting(HOLD_KEY, reason)
+        self.hold_reason = reason
+        log.info("queue %s", f"held: {reason}" if reason else "runs")
+        self.bus.publish("queue.state", {"held": reason is not None, "reason": reason or ""})
 
     async def _printer_ready(self) -> bool:
         """Whether the printer takes lines now; if not, wait until it does and say no.
@@ -435,6 +502,9 @@ class JobManager:
                  "interrupted": JobState.INTERRUPTED}.get(outcome, JobState.FAILED)
         with contextlib.suppress(JobStateError):
             self._set_state(job.id, state, reason or outcome)
+        if streamer.modal.extruded > 0:  # a part (or a part of one) is on the platform
+            self._hold_for(job.id, {"completed": "completed", "cancelled": "was cancelled",
+                                    "interrupted": "was interrupted"}.get(outcome, "failed"))
 
     def _still(self, job: Job) -> bool:
         """Whether ``job`` is still in the state it had when the print loop took it up: it
@@ -549,13 +619,15 @@ class JobManager:
         elif self._last is not None and self._last["id"] == job_id:
             self._last["state"] = new.value
         self._emit_state(job, old, reason)
+        if new is not old and (left := self._left.pop(job_id, None)) is not None:
+            left.set()
         if new in STOPPED:
             self._release_waiters(job_id)
         return job
 
     def _release_waiters(self, job_id: int) -> None:
         """Wake whoever waits for the job to stop or pause: it has stopped (or is gone)."""
-        for waiting in (self._done, self._paused_evt):
+        for waiting in (self._done, self._paused_evt, self._left):
             evt = waiting.pop(job_id, None)
             if evt is not None:
                 evt.set()
@@ -619,6 +691,7 @@ class JobManager:
                 "latest": None if latest is None else dict(latest),
                 "recovered": list(self.recovered), "db_checkpoints": self.checkpoints,
                 "waiting_for_printer": self.waiting_for_printer,
+                "queue": self.queue_status(),
                 "file_checks": self.checker.status()}
 
 

@@ -72,6 +72,10 @@ CREATE TABLE IF NOT EXISTS checkpoints (
     pose TEXT NOT NULL DEFAULT '{}'
 );
 CREATE INDEX IF NOT EXISTS checkpoints_job ON checkpoints(job_id);
+CREATE TABLE IF NOT EXISTS settings (
+    key TEXT PRIMARY KEY,
+    value TEXT NOT NULL
+);
 """
 
 _JSON_COLUMNS = ("modal", "estimate", "info", "resume")
@@ -311,6 +315,19 @@ class JobStore:
         with self._db:
             self._db.execute("DELETE FROM jobs WHERE id = ?", (job_id,))
         return job
+
+    def setting(self, key: str) -> str | None:
+        """A persisted daemon setting (the queue hold), ``None`` when unset."""
+        row = self._db.execute("SELECT value FROM settings WHERE key = ?", (key,)).fetchone()
+        return None if row is None else str(row[0])
+
+    def set_setting(self, key: str, value: str | None) -> None:
+        """Persist ``value`` under ``key`` (``None`` removes it)."""
+        if value is None:
+            self._db.execute("DELETE FROM settings WHERE key = ?", (key,))
+        else:
+            self._db.execute("INSERT INTO settings (key, value) VALUES (?, ?) ON CONFLICT(key)"
+                             " DO UPDATE SET value = excluded.value", (key, value))
 
     def references(self, sha: str) -> int:
         """How many jobs use ``sha`` as upload or G-code."""

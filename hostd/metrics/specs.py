@@ -76,6 +76,10 @@ SPECS: tuple[Spec, ...] = (
          "jobs.latest.filament_mm", scale=1e-3),
     Spec("hostd_queue_length", "gauge", "Jobs waiting (queued, slicing or ready).",
          "jobs.queue_length"),
+    Spec("hostd_queue_held", "gauge", "1 while no new job starts: a part is on the platform "
+         "(daemon.next_job: after_clear) or the operator held the queue.", "jobs.queue.held"),
+    Spec("hostd_queue_waiting_for_printer", "gauge", "1 while a ready job waits for the serial "
+         "link (down or halted).", "jobs.waiting_for_printer"),
     Spec("hostd_jobs_finished_total", "counter", "Jobs finished, by outcome.",
          "jobs.finished", label="outcome"),
     Spec("hostd_slicing_duration_seconds", "histogram", "Wall time of slicing jobs.",

@@ -98,10 +98,16 @@ async def test_hostctl_sends_a_large_file_in_parts(tmp_path):
             job = json.loads(out)
             assert job["upload_sha"] == hashlib.sha256(data).hexdigest()
             rc, out, _ = await hostctl(d.socket, "status", "--json")
-            # the parts, the submission, and this status call
-            assert json.loads(out)["control"]["requests_total"] - before == parts + 2
+            # the limit (server.info), the parts, the submission, and this status call
+            assert json.loads(out)["control"]["requests_total"] - before == parts + 3
+            rc, out, _ = await hostctl(d.socket, "status", "--json")
+            before = json.loads(out)["control"]["requests_total"]
             rc, _, err = await hostctl(d.socket, "print", str(too_big))
             assert rc == 4 and f"exceeds the limit of {4 * PART_BYTES} bytes" in err
+            assert str(too_big) in err and "daemon.max_upload_bytes" in err
+            rc, out, _ = await hostctl(d.socket, "status", "--json")
+            # refused from the file's size: no part was sent (nor the file read)
+            assert json.loads(out)["control"]["requests_total"] - before == 2
         finally:
             await d.stop()
 
@@ -125,7 +131,7 @@ async def test_print_wait_tells_how_to_resume_when_hostd_stops_mid_print(tmp_pat
     assert rc == 1, err
     lines = out.splitlines()
     assert lines[-2].startswith("job 1 interrupted: daemon stopped (SIGTERM) at line ")
-    assert lines[-1] == "resume it with: hostctl resume 1 [--from checkpoint|subpart|layer]"
+    assert lines[-1] == "resume it with: hostctl resume 1 [--from layer|subpart|checkpoint]"
 
 
 @pytest.mark.asyncio
@@ -182,5 +188,37 @@ async def test_status_after_an_estop_and_firmware_restart(tmp_path):
             rc, out, _ = await hostctl(d.socket, "status")
             assert "held:" not in out and "link: ready" in out
             await watcher.close()
+        finally:
+            await d.stop()
+
+
+@pytest.mark.asyncio
+async def test_hostctl_queue_shows_and_lifts_the_hold(tmp_path):
+    d = DaemonProc(tmp_path, daemon__next_job="after_clear")
+    part = tmp_path / "part.gcode"
+    part.write_text(make_gcode(subparts=1, layers=2, per_layer=20))
+    async with asyncio.timeout(90):
+        await d.start()
+        try:
+            rc, out, err = await hostctl(d.socket, "print", str(part), "--wait")
+            assert rc == 0 and "job 1 completed" in out, err
+            rc, out, _ = await hostctl(d.socket, "queue")
+            assert rc == 0 and out.splitlines()[0] == (
+                "queue held: job 1 completed: clear the platform, then hostctl queue start")
+            rc, out, _ = await hostctl(d.socket, "print", str(part))
+            assert rc == 0 and out.splitlines() == [
+                "job 2 ready: part.gcode",
+                "queue held: job 1 completed: clear the platform, then hostctl queue start"]
+            rc, out, _ = await hostctl(d.socket, "status")
+            assert "queue: 1 waiting\n  held: job 1 completed: clear the platform" in out
+            rc, out, _ = await hostctl(d.socket, "queue", "start", "--json")
+            assert rc == 0 and json.loads(out)["held"] is False
+            watcher = await d.rpc()
+            assert (await watcher.call("job.wait", id=2))["state"] == "completed"
+            await watcher.close()
+            rc, out, _ = await hostctl(d.socket, "queue", "hold")
+            assert rc == 0 and out.startswith("queue held: job 2 completed")
+            rc, _, err = await hostctl(d.socket, "print", str(tmp_path))
+            assert rc == 2 and err.strip() == f"hostctl: {tmp_path}: not a regular file"
         finally:
             await d.stop()

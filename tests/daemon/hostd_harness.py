@@ -126,8 +126,10 @@ class DaemonProc:
         self.tmp = tmp
         self.socket = tmp / "hostd.sock"
         cfg: dict[str, Any] = {
+            # the tests queue jobs back to back; the queue hold after a print (the default,
+            # daemon.next_job: after_clear) has tests of its own (test_queue_hold.py)
             "daemon": {"socket": str(self.socket), "state_dir": str(tmp / "state"),
-                       "log_level": "info"},
+                       "log_level": "info", "next_job": "at_once"},
             "metrics": {"enabled": False},
             "serial": {"port": "sim://"},
             "sim": {"throttle": False},

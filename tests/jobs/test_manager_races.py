@@ -130,9 +130,10 @@ async def test_an_interrupted_job_cancelled_while_its_resume_loads_stays_cancell
     mgr.gated.add(stopped.id)
     mgr.start()
     async with asyncio.timeout(10):
-        await mgr.resume(stopped.id, "layer")
+        resuming = asyncio.create_task(mgr.resume(stopped.id, "layer"))
         await mgr.loading.wait()
         await mgr.cancel(stopped.id)
+        assert (await resuming).state is JobState.CANCELLED  # resume answers with the outcome
         after = add_job(mgr, "after")
         mgr.gate.set()
         mgr._wake_print.set()
