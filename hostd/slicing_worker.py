@@ -72,8 +72,12 @@ def code_digest() -> str:
     return digest.hexdigest()
 
 
-def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str) -> dict[str, Any]:
+def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str,
+                    name: str | None = None) -> dict[str, Any]:
     """Runs in the worker process: slice ``stl_path`` with config ``values`` to ``out_path``.
+
+    An error is one line naming the upload as ``name`` (the operator's file name), not the
+    spool file it is kept in.
 
     The G-code is written to a temporary name and renamed, so a crash never leaves a partial
     file under the cache key.
@@ -90,7 +94,10 @@ def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str) -> dic
         write_gcode(tmp, result.lines)
     except Exception as exc:  # the slicer's own errors, reported as one line to the operator
         Path(tmp).unlink(missing_ok=True)
-        raise SliceError(str(exc).splitlines()[0] if str(exc) else type(exc).__name__) from None
+        text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if name:
+            text = text.replace(stl_path, name).replace(Path(stl_path).name, name)
+        raise SliceError(text) from None
     os.replace(tmp, out_path)
     return _summary(result)
 
@@ -128,7 +135,10 @@ class SlicingWorker:
         self.failures = 0
         self.active = 0
 
-    async def slice(self, stl_path: Path, stl_sha: str) -> SliceOutcome:
+    async def slice(self, stl_path: Path, stl_sha: str, name: str | None = None
+                    ) -> SliceOutcome:
+        """The G-code of the STL at ``stl_path`` (its sha256 ``stl_sha``), from the cache or
+        sliced in the worker; :class:`SliceError` naming the upload ``name``."""
         key = cache_key(stl_sha, self.profile)
         out = self.cache.gcode_path(key)
         info = await asyncio.to_thread(self.cache.lookup, key)
@@ -138,7 +148,8 @@ class SlicingWorker:
         started = time.monotonic()
         self.active += 1
         try:
-            info = await self.process.run(slice_in_worker, str(stl_path), self.values, str(out))
+            info = await self.process.run(slice_in_worker, str(stl_path), self.values, str(out),
+                                          name)
         except WorkerDied:
             self.failures += 1
             raise SliceError("the slicing worker died (out of memory?)") from None

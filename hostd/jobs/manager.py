@@ -315,7 +315,7 @@ class JobManager:
             if self.worker is None:
                 raise SliceError("no slicing worker")
             stl = self.spool.path(job.upload_sha, ".stl")
-            outcome = await self.worker.slice(stl, job.upload_sha)
+            outcome = await self.worker.slice(stl, job.upload_sha, job.name)
             summary = await self.checker.summarize(outcome.gcode_path, job.name)
             data = await asyncio.to_thread(outcome.gcode_path.read_bytes)
             sha = await asyncio.to_thread(self.spool.put, data, ".gcode")

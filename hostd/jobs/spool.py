@@ -177,6 +177,9 @@ def check_stl(data: bytes, name: str) -> None:
             raise SpoolError(f"{name}: ASCII STL with non-ASCII bytes") from None
         if b"endsolid" not in data[-4096:].lower():
             raise SpoolError(f"{name}: ASCII STL is truncated (no endsolid)")
+        if bad := _NONFINITE_ASCII.search(data):
+            line = data.count(b"\n", 0, bad.start()) + 1
+            raise SpoolError(f"{name}: line {line}: vertex with a NaN or infinite coordinate")
         return
     if len(data) < 84:
         raise SpoolError(f"{name}: not an STL file ({len(data)} bytes)")
@@ -186,6 +189,24 @@ def check_stl(data: bytes, name: str) -> None:
     if len(data) != 84 + 50 * count:
         raise SpoolError(f"{name}: corrupt binary STL: {count} triangles need "
                          f"{84 + 50 * count} bytes, got {len(data)}")
+    _check_finite(data, count, name)
+
+
+_NONFINITE_ASCII = re.compile(rb"vertex[ \t]+[^\n]*?(nan|inf)", re.IGNORECASE)
+_TRIANGLE = [("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("attributes", "<u2")]
+
+
+def _check_finite(data: bytes, count: int, name: str) -> None:
+    """Refuse a binary STL with a NaN or infinite vertex coordinate (numpy: this runs in the
+    file checker's worker process, not in the daemon)."""
+    import numpy as np
+
+    tri = np.frombuffer(data, np.dtype(_TRIANGLE), count, offset=84)
+    bad = ~np.isfinite(tri["vertices"]).all(axis=2)
+    if bad.any():
+        first = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise SpoolError(f"{name}: {int(bad.sum())} triangle corners have NaN or infinite "
+                         f"coordinates (the first in triangle {first})")
 
 
 def check_gcode(data: bytes, name: str) -> str:

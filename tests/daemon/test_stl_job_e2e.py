@@ -94,3 +94,26 @@ async def test_three_branched_sample_runs_every_transition_as_a_transaction(daem
     assert subparts == 3 and transitions == subparts  # one turn before every sub-part
     assert [cp["subpart"] for cp in got["checkpoints"]] == list(range(subparts))
     assert await d.stop() == 0
+
+
+async def test_an_stl_the_slicer_refuses_fails_naming_the_uploaded_file(daemon_factory):
+    """A mesh that passes the upload's structural check but not the slicer (an open
+    surface): the job fails with the slicer's one line, naming the operator's file, not the
+    spool file (its content hash) it is kept under."""
+    import trimesh
+
+    d = daemon_factory()
+    await d.start()
+    sheet = trimesh.Trimesh([[0, 0, 0], [10, 0, 0], [0, 10, 0], [10, 10, 0]],
+                            [[0, 1, 2], [1, 3, 2]])
+    async with asyncio.timeout(60):
+        c = await d.rpc()
+        await c.call("events.subscribe", events=["job.state"])
+        job = await c.call("job.submit", name="sheet.stl", data=_stl(sheet))
+        await c.until_state(job["id"], "failed")
+        got = await c.call("job.get", id=job["id"])
+        await c.close()
+    assert got["reason"].startswith("slicing failed: sheet.stl: "), got["reason"]
+    assert job["upload_sha"] not in got["reason"] and "spool" not in got["reason"]
+    assert "\n" not in got["reason"]
+    assert await d.stop() == 0

@@ -36,6 +36,17 @@ def binary_stl(triangles: int, extra: bytes = b"") -> bytes:
     return b"\0" * 80 + struct.pack("<I", triangles) + b"\0" * 50 * triangles + extra
 
 
+def nan_stl(triangles: int, bad: int) -> bytes:
+    """A binary STL whose triangle ``bad`` has a NaN coordinate (its second corner's y)."""
+    rows = []
+    for i in range(triangles):
+        corners = [0.0, 0.0, float(i), 1.0, 0.0, float(i), 0.0, 1.0, float(i)]
+        if i == bad:
+            corners[4] = float("nan")
+        rows.append(struct.pack("<12fH", 0.0, 0.0, 1.0, *corners, 0))
+    return b"\0" * 80 + struct.pack("<I", triangles) + b"".join(rows)
+
+
 @pytest.mark.asyncio
 @pytest.mark.timeout(120)
 async def test_the_worker_summarizes_as_a_parse_here_would(tmp_path: Path,
@@ -69,6 +80,12 @@ async def test_the_worker_summarizes_as_a_parse_here_would(tmp_path: Path,
     ("gcode", b"; only a comment\n\n", "no commands"),
     ("stl", binary_stl(2, b"\0" * 7), "corrupt binary STL"),
     ("stl", b"solid x\nfacet normal 0 0 1\n", "truncated"),
+    ("stl", nan_stl(3, 2), r"1 triangle corners have NaN or infinite coordinates \(the "
+     r"first in triangle 2\)"),
+    ("stl", b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 NaN\n"
+     b"vertex 0 1 0\nendloop\nendfacet\nendsolid x\n", "line 5: vertex with a NaN"),
+    ("stl", b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
+     b"vertex 0 1 -inf\nendloop\nendfacet\nendsolid x\n", "line 6: vertex with a NaN"),
 ])
 async def test_a_bad_file_is_refused_naming_it(tmp_path: Path, kind: str, data: bytes,
                                                message: str):
