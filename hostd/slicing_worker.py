@@ -134,6 +134,8 @@ class SlicingWorker:
         self.cache_hits = 0
         self.failures = 0
         self.active = 0
+        self.cancelled = 0
+        self._cancelling = False
 
     async def slice(self, stl_path: Path, stl_sha: str, name: str | None = None
                     ) -> SliceOutcome:
@@ -147,10 +149,15 @@ class SlicingWorker:
             return SliceOutcome(out, True, 0.0, info)
         started = time.monotonic()
         self.active += 1
+        self._cancelling = False
         try:
             info = await self.process.run(slice_in_worker, str(stl_path), self.values, str(out),
                                           name)
         except WorkerDied:
+            for tmp in out.parent.glob(f"{out.name}.*.tmp"):  # the dead worker's partial file
+                tmp.unlink(missing_ok=True)
+            if self._cancelling:
+                raise SliceError("slicing stopped: the job was cancelled") from None
             self.failures += 1
             raise SliceError("the slicing worker died (out of memory?)") from None
         except SliceError:
@@ -168,10 +175,21 @@ class SlicingWorker:
             raise SliceError(f"cannot keep the sliced G-code: {exc.strerror or exc}") from None
         return SliceOutcome(out, False, duration, info)
 
+    def cancel(self) -> bool:
+        """Stop the slice running now (its job was cancelled): the worker is ended and the
+        next slice starts a fresh one. Whether a slice was running."""
+        if not self.active:
+            return False
+        self._cancelling = True
+        self.cancelled += 1
+        self.process.kill()
+        return True
+
     def close(self) -> None:
         self.process.close()
 
     def status(self) -> dict[str, Any]:
         return {"active": self.active, "durations": self.durations.snapshot(),
                 "last_duration_s": self.last_duration_s, "cache_hits": self.cache_hits,
-                "failures": self.failures, "worker_started": self.process.started}
+                "failures": self.failures, "cancelled": self.cancelled,
+                "worker_started": self.process.started}

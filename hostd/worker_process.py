@@ -67,6 +67,16 @@ class WorkerProcess:
             self._pool = None
             raise WorkerDied("the worker process died (out of memory?)") from None
 
+    def kill(self) -> None:
+        """End the worker now: a call running in it raises :class:`WorkerDied`, and the next
+        call starts a fresh worker."""
+        pool = self._pool
+        if pool is None:
+            return
+        procs = getattr(pool, "_processes", None) or {}  # the executor's record of its workers
+        for proc in list(procs.values()):
+            proc.kill()
+
     def close(self) -> None:
         """Stop the worker; a call still running is abandoned."""
         if self._pool is not None:

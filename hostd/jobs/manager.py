@@ -105,6 +105,7 @@ class JobManager:
         self._done: dict[int, asyncio.Event] = {}
         self._paused_evt: dict[int, asyncio.Event] = {}
         self._left: dict[int, asyncio.Event] = {}  # resume() waits for the job's next state
+        self._slicing: int | None = None  # the job the slicing worker is busy with
         self.counts = store.counts()  # jobs per state, kept in memory (status() is a read)
         self.finished = {s: self.counts[s] for s in ("completed", "failed", "cancelled",
                                                        "interrupted")}
@@ -250,6 +251,8 @@ class JobManager:
         if job.state in TERMINAL:
             raise JobStateError(f"job {job_id} is already {job.state}")
         self._set_state(job_id, JobState.CANCELLED, "cancelled by operator")
+        if self._slicing == job_id and self.worker is not None:
+            self.worker.cancel()  # the next STL job need not wait for this slice
         return self.store.get(job_id)
 
     async def delete(self, job_id: int) -> Job:
@@ -315,7 +318,11 @@ class JobManager:
             if self.worker is None:
                 raise SliceError("no slicing worker")
             stl = self.spool.path(job.upload_sha, ".stl")
-            outcome = await self.worker.slice(stl, job.upload_sha, job.name)
+            self._slicing = job.id
+            try:
+                outcome = await self.worker.slice(stl, job.upload_sha, job.name)
+            finally:
+                self._slicing = None
             summary = await self.checker.summarize(outcome.gcode_path, job.name)
             data = await asyncio.to_thread(outcome.gcode_path.read_bytes)
             sha = await asyncio.to_thread(self.spool.put, data, ".gcode")

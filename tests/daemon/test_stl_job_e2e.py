@@ -117,3 +117,27 @@ async def test_an_stl_the_slicer_refuses_fails_naming_the_uploaded_file(daemon_f
     assert job["upload_sha"] not in got["reason"] and "spool" not in got["reason"]
     assert "\n" not in got["reason"]
     assert await d.stop() == 0
+
+
+async def test_cancelling_a_job_while_it_slices_stops_the_slice(daemon_factory):
+    """The worker is ended, not left to finish a slice nobody wants: the next STL job is
+    sliced by a fresh worker, and the cancelled one leaves nothing in the cache."""
+    d = daemon_factory()
+    await d.start()
+    async with asyncio.timeout(300):
+        c = await d.rpc()
+        await c.call("events.subscribe", events=["job.state"])
+        slow = await c.call("job.submit", name="pipe3.stl", data=_stl(pipe3()))
+        await c.until_state(slow["id"], "slicing")
+        assert (await c.call("job.cancel", id=slow["id"]))["state"] == "cancelled"
+        small = await c.call("job.submit", name="cyl.stl", data=_stl(cylinder()))
+        await c.until_state(small["id"], "completed", "failed")
+        got = await c.call("job.get", id=small["id"])
+        slicer = (await c.call("printer.status"))["slicer"]
+        await c.close()
+    assert got["state"] == "completed", got["reason"]
+    assert slicer["cancelled"] == 1 and slicer["failures"] == 0
+    cache = sorted(p.name for p in (d.tmp / "state" / "cache").iterdir())
+    assert len(cache) == 2 and all(small["upload_sha"] in n for n in cache), cache
+    assert await d.stop() == 0
+    assert d.loop_errors() == []
