@@ -70,6 +70,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_send)
 
+    p = subparsers.add_parser("delete", help="forget a finished job and its files")
+    p.add_argument("id", type=int)
+    p.add_argument("--json", action="store_true")
+    p.set_defaults(func=cmd_delete)
+
     p = subparsers.add_parser("estop", help="emergency stop (M112)")
     p.set_defaults(func=cmd_estop)
     p = subparsers.add_parser("firmware-restart",
@@ -226,7 +231,8 @@ class ProgressBar:
         eta = p.get("eta_s")
         eta_s = "--:--" if eta is None else _hms(float(eta))
         return (f"[{'#' * filled}{'.' * (self.WIDTH - filled)}] {ratio * 100:5.1f}% "
-                f"{self.state:<9} sub-part {p.get('subpart')} layer {p.get('layer')} "
+                f"{self.state:<9} sub-part {_or_dash(p.get('subpart'))} "
+                f"layer {_or_dash(p.get('layer'))} "
                 f"ETA {eta_s}")
 
     def update(self, p: dict[str, Any]) -> None:
@@ -243,6 +249,11 @@ class ProgressBar:
         if self.tty:
             self.out.write("\r\033[K")
         print(text, file=self.out, flush=True)
+
+
+def _or_dash(value: Any) -> str:
+    """A sub-part or layer number, ``-`` before the first (the start script runs)."""
+    return "-" if value is None else str(value)
 
 
 def _hms(seconds: float) -> str:
@@ -363,6 +374,16 @@ def cmd_send(args: argparse.Namespace) -> int:
         return EXIT_OK
     for cmd, reply in zip(res["commands"], res["replies"], strict=False):
         print(f"{cmd}: {json.dumps(reply) if not isinstance(reply, str) else reply}")
+    return EXIT_OK
+
+
+def cmd_delete(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        res = c.call("job.delete", id=args.id)
+    if args.json:
+        _emit_json(res)
+    else:
+        print(f"job {res['deleted']} deleted")
     return EXIT_OK
 
 

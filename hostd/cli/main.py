@@ -19,11 +19,18 @@ from hostd.cli.errors import EXIT_USAGE, CliError
 DEFAULT_SOCKET = "/run/hostd/hostd.sock"
 
 
+def _socket_arg(text: str) -> str:
+    """An argparse type: a non-empty path (an empty one would quietly mean the default)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("empty path")
+    return text
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hostctl", description="Control hostd and run the five-axis slicer offline.")
     parser.add_argument("--version", action="version", version=f"hostctl {__version__}")
-    parser.add_argument("--socket", default=None,
+    parser.add_argument("--socket", default=None, type=_socket_arg,
                         help=f"hostd control socket (default: $HOSTD_SOCKET or {DEFAULT_SOCKET})")
     subparsers = parser.add_subparsers(dest="verb", metavar="VERB")
     subparsers.required = True

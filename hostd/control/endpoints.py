@@ -113,7 +113,10 @@ def build_registry(d: Daemon) -> Registry:
         return {"bytes": await uploads.append(ctx.id, data, offset)}
 
     async def job_list(ctx: Client, states: list[Any] | None, limit: int) -> dict[str, Any]:
-        wanted = None if states is None else [parse_state(str(s)) for s in states]
+        try:
+            wanted = None if states is None else [parse_state(str(s)) for s in states]
+        except JobStateError as exc:  # a bad parameter, not a job in the wrong state
+            raise RpcError(INVALID_PARAMS, f"states: {exc}") from None
         if limit < 0:
             raise RpcError(INVALID_PARAMS, f"limit: {limit} is negative (0 lists every job)")
         store = d.jobs.store

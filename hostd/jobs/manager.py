@@ -183,7 +183,7 @@ class JobManager:
             if self._stopping:
                 raise ShuttingDown("the daemon is shutting down")
             kind = upload_kind(name, kind)
-            self.spool.check_size(staged.size)
+            self.spool.check_size(staged.size, name)
             await asyncio.to_thread(staged.finish)  # on disk before the worker reads it
             summary = await self.checker.check(staged.path, kind, name)
             sha = await asyncio.to_thread(self.spool.commit, staged, SUFFIX[kind])
@@ -657,7 +657,8 @@ class JobManager:
                 "progress": ratio, "subpart": st.subpart, "layer": st.layer,
                 "elapsed_s": elapsed, "eta_s": eta(act.program.estimate.get("time_s"),
                                                    ratio, elapsed - since, mark),
-                "filament_mm": st.modal.extruded, "state": st.state,
+                "filament_mm": st.modal.extruded, "state": act.job.state.value,
+                "stream": st.state,
                 "a": st.modal.position["A"], "c": st.modal.position["C"]}
 
     def job_dict(self, job: Job) -> dict[str, Any]:

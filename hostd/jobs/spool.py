@@ -94,12 +94,14 @@ class Spool:
         for stale in self.root.glob(".*.tmp"):  # uploads a stopped daemon left half-written
             stale.unlink(missing_ok=True)
 
-    def check_size(self, size: int) -> None:
-        """Raise :class:`SpoolError` for an empty or oversized upload."""
+    def check_size(self, size: int, name: str = "") -> None:
+        """Raise :class:`SpoolError` for an empty or oversized upload (named ``name``)."""
+        where = f"{name}: " if name else ""
         if size <= 0:
-            raise SpoolError("empty upload")
+            raise SpoolError(f"{where}empty upload")
         if size > self.max_bytes:
-            raise SpoolError(f"upload of {size} bytes exceeds the limit of {self.max_bytes} bytes")
+            raise SpoolError(f"{where}upload of {size} bytes exceeds the limit of "
+                             f"{self.max_bytes} bytes")
 
     def stage(self) -> Staged:
         """A new upload, to :meth:`Staged.write` and then :meth:`commit` or discard."""

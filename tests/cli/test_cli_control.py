@@ -72,6 +72,12 @@ async def test_hostctl_verbs_and_exit_codes(tmp_path):
             assert rc == 0 and [j["id"] for j in json.loads(out)] == [1, 2, 3]
             rc, _, err = await hostctl(d.socket, "jobs", "--limit", "-1")
             assert rc == 2 and "whole number" in err
+            rc, out, _ = await hostctl(d.socket, "delete", "1")
+            assert rc == 0 and out.strip() == "job 1 deleted"
+            rc, out, _ = await hostctl(d.socket, "jobs", "--limit", "0", "--json")
+            assert [j["id"] for j in json.loads(out)] == [2, 3]
+            rc, _, err = await hostctl(d.socket, "delete", "1")
+            assert rc == 4 and "1" in err
         finally:
             await d.stop()
 

@@ -9,3 +9,27 @@ def test_link_trouble_names_the_counters_that_are_not_zero() -> None:
     assert link_trouble({"timeouts": 0, "resend_requests": 0, "reconnects": 0}) == ""
     assert link_trouble({"timeouts": 2, "resend_requests": 1, "checksum_errors": 0,
                          "resets": None}) == "2 ok timeouts, 1 resend request"
+
+
+def test_the_progress_bar_shows_a_dash_before_the_first_layer() -> None:
+    import io
+
+    from hostd.cli.cmd_control import ProgressBar
+
+    bar = ProgressBar(io.StringIO(), 1, "part.gcode")
+    bar.state = "printing"
+    start = bar.render({"progress": 0.01, "subpart": None, "layer": None, "eta_s": None})
+    assert "sub-part - layer - ETA --:--" in start and "None" not in start
+    later = bar.render({"progress": 0.5, "subpart": 2, "layer": 0, "eta_s": 75})
+    assert later.endswith("sub-part 2 layer 0 ETA 0:01:15")
+    assert later.startswith("[" + "#" * 15 + "." * 15 + "]  50.0% printing")
+
+
+def test_an_empty_socket_path_is_refused() -> None:
+    import pytest
+
+    from hostd.cli.main import build_parser
+
+    with pytest.raises(SystemExit) as done:
+        build_parser().parse_args(["--socket", "", "status"])
+    assert done.value.code == 2

@@ -127,7 +127,7 @@ async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
         await c.until(lambda e: e["event"] == "job.progress" and e["progress"] > 0.05)
         bad = {
             "corrupt.stl": (os.urandom(1000), "corrupt binary STL"),
-            "empty.stl": (b"", "empty upload"),
+            "empty.stl": (b"", "empty.stl: empty upload"),
             "big.gcode": (b"G1 X1\n" * 40_000, "exceeds the limit"),
             "binary.gcode": (b"\xff\xfe\x00G1", "not UTF-8"),
             "part.obj": (b"v 1 2 3", "cannot tell the kind"),
@@ -154,6 +154,9 @@ async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
         with pytest.raises(RpcCallError) as err:
             await c.call("job.get", id=10**30)
         assert err.value.code == -32602 and "out of range" in err.value.message
+        with pytest.raises(RpcCallError) as err:
+            await c.call("job.list", states=["printing", "bogus"])
+        assert err.value.code == -32602 and "unknown job state 'bogus'" in err.value.message
         for params, message in (({"name": "a\ud800.gcode", "data": "RzI4Cg=="}, "name: not"),
                                 ({"name": "a.gcode", "data": "G28 ;\udfff\n", "encoding": "text"},
                                  "data: not Unicode text")):

@@ -52,7 +52,8 @@ async def test_a_firmware_restart_is_refused_while_a_job_is_on_the_printer(daemo
         c = await d.rpc()
         await c.call("events.subscribe")
         job = await c.submit_text("long.gcode", text)
-        await c.until(lambda e: e["event"] == "job.progress" and e["acked"] > 10)
+        ev = await c.until(lambda e: e["event"] == "job.progress" and e["acked"] > 10)
+        assert (ev["state"], ev["stream"]) == ("printing", "streaming")  # job's, streamer's
         with pytest.raises(RpcCallError) as err:
             await c.call("printer.firmware_restart")
         assert err.value.code == -32004 and f"job {job['id']}" in err.value.message
