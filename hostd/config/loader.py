@@ -159,7 +159,9 @@ def _key_line(root: yaml.MappingNode, dotted: str) -> int:
 
 def _cross_checks(config: Config, name: str, root: yaml.MappingNode) -> None:
     for dotted, reason in _problems(config):
-        raise ConfigError(f"{name}:{_key_line(root, dotted)}: {dotted}: {reason}")
+        line = _key_line(root, dotted)  # 0: the key keeps its default (the other one is set)
+        raise ConfigError(f"{name}:{line}: {dotted}: {reason}" if line
+                          else f"{name}: {dotted}: {reason}")
 
 
 def _problems(c: Config) -> Iterator[tuple[str, str]]:
@@ -174,6 +176,10 @@ def _problems(c: Config) -> Iterator[tuple[str, str]]:
             yield "printhead.segments", f"item {i}: start {s['start']:g} leaves a gap"
     if segs and segs[0]["start"] != 0:
         yield "printhead.segments", "the first segment must start at the nozzle tip (0)"
+    for process, machine in (("process.nozzle_temperature", "machine.max_hotend_temp"),
+                             ("process.bed_temperature", "machine.max_bed_temp")):
+        if c[process] > c[machine]:
+            yield process, f"{c[process]:g} is above {machine} ({c[machine]:g})"
     bound = c["machine.nozzle_diameter"] * 0.8
     if c["process.line_width"] < bound:
         yield "process.line_width", (f"{c['process.line_width']:g} is narrower than 0.8 × "

@@ -55,6 +55,11 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "max_accel": Number("Linear axes acceleration, mm/s².", 1000.0, lo=10, hi=50000),
         "max_rotary_velocity": Number("A/C top speed, degrees/s.", 90.0, lo=1, hi=3600),
         "max_rotary_accel": Number("A/C acceleration, degrees/s².", 360.0, lo=1, hi=100000),
+        "max_hotend_temp": Number("Highest hotend target (M104/M109 S) a job or raw G-code "
+                                  "may set, °C; a higher one is refused.", 285.0, lo=0,
+                                  hi=500),
+        "max_bed_temp": Number("Highest platform target (M140/M190 S) a job or raw G-code "
+                               "may set, °C; a higher one is refused.", 120.0, lo=0, hi=200),
     },
     "printhead": {
         "segments": Records(

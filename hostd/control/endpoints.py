@@ -55,10 +55,13 @@ def build_registry(d: Daemon) -> Registry:
         return d.snapshot()
 
     async def printer_gcode(ctx: Client, script: str) -> dict[str, Any]:
-        try:  # the checks of a file: no control characters, only finite numbers
-            commands = parse_program(script).commands
+        try:  # the checks of a file: no control characters, only finite numbers, the heaters'
+            program = parse_program(script)  # limits
+            if d.jobs.checker.envelope is not None:
+                d.jobs.checker.envelope.check_temperatures(program)
         except ProgramError as exc:
             raise RpcError(INVALID_PARAMS, f"script: {exc}") from None
+        commands = program.commands
         if not commands:
             raise RpcError(INVALID_PARAMS, "script: no G-code commands")
         if len(commands) > RAW_MAX_LINES:

@@ -40,6 +40,9 @@ _MOVE_WORDS = re.compile(r"^G[0-3](?= |$)([^\n]*)", re.M)  # a move's words, aft
 _BY_COMMAND = re.compile(  # commands only a command-by-command reading follows: modes,
     r"^(?:[a-z]|G0\d|G9[01]\b|G92\b(?=[^\n]* [XYZACxyzac])|G28\b)", re.M)  # offsets, homing
 _ODD_WORD = re.compile(r" (?:[a-z]|[XYZAC](?= |\n))")  # in a move: lowercase, a bare axis
+HEATERS = {"M104": "hotend", "M109": "hotend", "M140": "bed", "M190": "bed"}
+HEATER_KEYS = {"hotend": "machine.max_hotend_temp", "bed": "machine.max_bed_temp"}
+_HEATING = re.compile(r"^M1(?:04|09|40|90)(?= |$)[^\n]*", re.M)
 
 
 @dataclass(frozen=True)
@@ -58,16 +61,41 @@ class Envelope:
 
     ranges: dict[str, tuple[float, float]]
     kinematics: dict[str, Any]
+    heaters: dict[str, float] | None = None
+    """Heater (``hotend``, ``bed``) → highest target temperature, °C."""
 
     def check(self, program: Program) -> None:
         """Raise :class:`ProgramError` when ``program`` does not fit this printer."""
         if program.kinematics:
             self._check_kinematics(program.kinematics)
+        self.check_temperatures(program)
         extents = travel_extents(program.commands)
         for axis, (lo, hi) in self.ranges.items():
             low, high = extents.get(axis, (math.inf, -math.inf))
             if low < lo - TRAVEL_TOL or high > hi + TRAVEL_TOL:
                 raise ProgramError(self._outside(program, axis))
+
+    def check_temperatures(self, program: Program) -> None:
+        """Refuse a heater target above this printer's (``M104``/``M109``/``M140``/``M190``
+        ``S`` or ``R``): the firmware would clamp it, or heat to it."""
+        if not self.heaters:
+            return
+        for start in range(0, len(program.commands), JOIN_LINES):
+            text = "\n".join(program.commands[start:start + JOIN_LINES])
+            for found in _HEATING.finditer(text):
+                self._check_target(program, start + text.count("\n", 0, found.start()),
+                                   found.group())
+
+    def _check_target(self, program: Program, index: int, command: str) -> None:
+        code, args = words(command)
+        heater = HEATERS[code]
+        limit = self.heaters.get(heater) if self.heaters else None
+        for key in ("S", "R"):
+            value = args.get(key)
+            if limit is not None and value is not None and value > limit:
+                raise ProgramError(
+                    f"line {program.source_lines[index]}: {code} {key}{value:g} is above the "
+                    f"{heater}'s limit {limit:g} °C ({HEATER_KEYS[heater]})")
 
     def _check_kinematics(self, header: dict[str, Any]) -> None:
         for key, config_key in HEADER_KEYS.items():
@@ -92,7 +120,10 @@ def envelope_from_config(values: dict[str, Any]) -> Envelope:
                 for s in values["printhead.segments"]]
     kinematics = {key: values[config_key] for key, config_key in HEADER_KEYS.items()
                   if key != "printhead"}
-    return Envelope(ranges, {**kinematics, "printhead": segments})  # type: ignore[arg-type]
+    heaters = {heater: float(values[key]) for heater, key in HEATER_KEYS.items()
+               if values.get(key) is not None}
+    return Envelope(ranges, {**kinematics, "printhead": segments},  # type: ignore[arg-type]
+                    heaters)
 
 
 def _same(a: Any, b: Any) -> bool:

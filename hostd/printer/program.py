@@ -10,6 +10,7 @@ from __future__ import annotations
 import bisect
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,6 +25,9 @@ _SCREEN = bytes.maketrans(b"0123456789." + bytes([*range(0, 9), *range(11, 32), 
                           b"#" * 11 + b"\0" * 31)
 """Digits and the point to ``#``, control characters (tab and newline aside) to NUL."""
 _MARKS = (b"\0", b"#e", b"nan", b"inf")
+_COMMAND = re.compile(r"[GMT][0-9]")  # what a command starts with (strip_gcode upper-cases)
+_ODD_LINE = re.compile(r"\n(?![GMTgmt][0-9]|[;\n]|$)")  # a line starting as no command
+_ODD_FIRST = re.compile(r"(?![GMTgmt][0-9]|[;\n]|$)")  # does (or with a blank): the first
 
 
 @dataclass(frozen=True)
@@ -216,9 +220,9 @@ def _needs_line_checks(text: str) -> bool:
     a header's ``1.3e-16`` spares the rest of the file. Text beyond ASCII is looked at whole
     (``float`` reads other scripts' digits, and ``splitlines`` breaks lines at more than
     ``\\n``)."""
-    if not text.isascii():
-        return True
-    data = text.encode("ascii")
+    if not text.isascii() or _ODD_FIRST.match(text) or _ODD_LINE.search(text):
+        return True  # a line starting as no command does (a comment in parentheses, an N
+    data = text.encode("ascii")  # prefix, a stray word): rare in any real file
     screened = data.translate(_SCREEN).lower()
     for mark in _MARKS:
         at = screened.find(mark)
@@ -248,10 +252,14 @@ def _passes_alone(line: str) -> bool:
 
 
 def check_command(cmd: str, lineno: int) -> None:
-    """Refuse a command a firmware would misread: a control character, or an argument such as
-    ``X1e400`` or ``Xnan`` that is no finite number (messages aside: ``M117 info``)."""
+    """Refuse a command a firmware would misread: a control character, a first word that is
+    no G/M/T code (``hello``, ``X10``, ``%``), or an argument such as ``X1e400`` or ``Xnan``
+    that is no finite number (messages aside: ``M117 info``)."""
     if bad := CONTROL.search(cmd):
         raise ProgramError(f"line {lineno}: control character {bad[0]!r} in {cmd!r}")
+    if not _COMMAND.match(cmd):  # a text file, or a word the firmware does not know
+        raise ProgramError(f"line {lineno}: {cmd.split()[0][:20]!r} is not a G-code "
+                           "command (a G, M or T code and its number)")
     words = cmd.split()
     if words[0].upper() in MESSAGES:
         return

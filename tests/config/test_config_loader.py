@@ -86,6 +86,12 @@ def _error(text: str) -> str:
         ("machine:\n  nozzle_diameter: 0.6\nprocess:\n  line_width: 0.45\n",
          "config/hostd.yaml:4: process.line_width: 0.45 is narrower than 0.8 × "
          "machine.nozzle_diameter (0.48)"),
+        ("machine:\n  max_hotend_temp: 200\n",
+         "config/hostd.yaml: process.nozzle_temperature: 210 is above "
+         "machine.max_hotend_temp (200)"),
+        ("process:\n  bed_temperature: 130\n",
+         "config/hostd.yaml:2: process.bed_temperature: 130 is above machine.max_bed_temp "
+         "(120)"),
         ("printhead:\n  segments:\n    - {start: 0, end: 5, r_start: 1}\n",
          "config/hostd.yaml:3: printhead.segments: item 0: missing r_end"),
         ("printhead:\n  segments:\n    - {start: 0, end: 5, r_start: 1, r_end: 2}\n"

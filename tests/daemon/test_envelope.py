@@ -92,3 +92,28 @@ def test_a_file_sliced_for_another_machine_is_refused_naming_the_key(key, value,
         ENVELOPE.check(parse_program(_header(**{key: value})))
     assert str(err.value).startswith(f"sliced for another machine: {key} ")
     assert f"({config_key})" in str(err.value)
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    ("G28\nM104 S9999\n", "line 2: M104 S9999 is above the hotend's limit 285 °C "
+                          "(machine.max_hotend_temp)"),
+    ("G28\nM140 S60\nG1 X1\nM190 R121\n", "line 4: M190 R121 is above the bed's limit 120 °C "
+                                          "(machine.max_bed_temp)"),
+    ("; start\nM109 S286 ; too hot\n", "line 2: M109 S286 is above the hotend's limit"),
+])
+def test_a_heater_target_above_the_printers_limit_is_refused(text: str, message: str):
+    with pytest.raises(ProgramError) as err:
+        ENVELOPE.check(parse_program(text))
+    assert message in str(err.value)
+
+
+def test_targets_at_the_limits_and_other_m_codes_pass():
+    ENVELOPE.check(parse_program("M104 S285\nM109 R285\nM140 S120\nM190 S0\nM106 S255\n"
+                                 "M1040 S9999\nM117 M104 S9999\n"))
+
+
+def test_a_target_far_into_a_long_file_names_its_line():
+    lines = ["G28", "G90"] + ["G1 X10 Y10 E0.1"] * 9000 + ["M104 S300"]
+    with pytest.raises(ProgramError) as err:
+        ENVELOPE.check(parse_program("\n".join(lines) + "\n"))
+    assert str(err.value).startswith("line 9003: M104 S300")

@@ -18,6 +18,12 @@ from hostd.printer.program import check_command, parse_program
     ("G1 X10 E-inf\n", "line 1: E-inf is not a finite number"),
     ("G1 X1\x1a\n", "line 1: control character '\\x1a'"),
     ("M117 a\x07\n", "line 1: control character '\\x07'"),
+    ("G28\nhello world\n", "line 2: 'HELLO' is not a G-code command"),
+    ("G28\n  X10 Y10\n", "line 2: 'X10' is not a G-code command"),
+    ("G28\n%\n", "line 2: '%' is not a G-code command"),
+    ("G28\nG X1\n", "line 2: 'G' is not a G-code command"),
+    ("(setup) M104 S200\n(note) hello\n", "line 2: 'HELLO' is not a G-code command"),
+    ("N10 G28*18\nN11 nope*1\n", "line 2: 'NOPE' is not a G-code command"),
     (';HOSTD_LAYER {"subpart": "a", "index": 0}\nG1 X1\n',
      "line 1: marker needs an integer 'subpart'"),
     (';HOSTD_LAYER {"subpart": [1], "index": 0}\nG1 X1\n',
@@ -37,6 +43,7 @@ def test_refused_with_the_line_named(text: str, message: str):
     "G1 X1e3 Y2.5e-2 E0.04 F1800\n",  # exponents a firmware reads
     "M117 infill nan inf\n",  # a message is text
     "M23 inf.gco\n",  # so is a file name
+    "(setup) M104 S200\nN10 G28*18\ng1 x1\nT0\n",  # a comment, a number, lowercase, T
     "G1 X10\tY5\n",  # a tab separates words
 ])
 def test_unusual_but_valid_lines_pass(text: str):
@@ -55,7 +62,7 @@ def test_one_bad_line_among_many_is_found():
         parse_program("\n".join(lines) + "\n")
 
 
-WORDS = ["G1", "G0", "M117", "M104", "X1", "Y2.5", "E0.04", "F1800", "X1e3", "X1e400", "Xnan",
+WORDS = ["G1", "G0", "M117", "M104", "T0", "G", "%", "(c)", "N7", "hello", "X1", "Y2.5", "E0.04", "F1800", "X1e3", "X1e400", "Xnan",
          "Yinf", "E-INF", "NaN", "info", "S210", "; note", "; infill", "(nan)", "a\x1ab",
          "\x07", "\t", "1.e5", "Z.5E-2", "\r", "\x0b", "\u2028", "\x85", "X\u0661e400", "X1_0e400"]
 MARKERS = [';HOSTD_LAYER {"index": 1, "note": 1e-16}', ';HOSTD_ESTIMATE {"infill": 0.2}']
