@@ -27,6 +27,7 @@ from typing import Any
 
 from hostd import __version__
 from hostd.config import Config
+from hostd.config.placeholders import process_values
 from hostd.control.endpoints import build_registry
 from hostd.control.events import EventBus
 from hostd.control.rpc import PrinterBusy
@@ -85,7 +86,7 @@ def stream_settings(cfg: Config) -> StreamSettings:
         position_tolerance=float(t["position_tolerance"]),
         angle_tolerance=float(t["angle_tolerance"]),
         temperature_tolerance=float(t["temperature_tolerance"]),
-        end_gcode=str(p["end_gcode"]))
+        end_gcode=str(p["end_gcode"]), end_values=process_values(cfg))
 
 
 class Daemon:

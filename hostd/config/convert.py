@@ -8,27 +8,20 @@
 
 from __future__ import annotations
 
-from dataclasses import fields
 from typing import Any
 
 import numpy as np
 
 from hostd.config.loader import Config
+from hostd.config.placeholders import process_values
 from kinematics.machine import MachineGeometry
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 
-_MACHINE_PROCESS_KEYS = ("nozzle_diameter", "filament_diameter", "max_velocity", "max_accel",
-                         "max_rotary_velocity", "max_rotary_accel", "linearize_tolerance")
-
 
 def process_settings(cfg: Config, **override: Any) -> ProcessSettings:
     """ProcessSettings from ``process.*`` and ``machine.*`` (``override`` wins)."""
-    names = {f.name for f in fields(ProcessSettings)}
-    values: dict[str, Any] = {k: v for k, v in cfg.section("process").items() if k in names}
-    values.update({k: cfg[f"machine.{k}"] for k in _MACHINE_PROCESS_KEYS})
-    values.update(override)
-    return ProcessSettings(**values)
+    return ProcessSettings(**{**process_values(cfg), **override})
 
 
 def machine_geometry(cfg: Config) -> MachineGeometry:

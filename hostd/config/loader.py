@@ -14,6 +14,7 @@ from typing import Any
 import yaml
 
 from hostd.config.fields import FieldError
+from hostd.config.placeholders import SCRIPT_KEYS, script_problem
 from hostd.config.schema import SCHEMA
 
 
@@ -176,6 +177,9 @@ def _problems(c: Config) -> Iterator[tuple[str, str]]:
             yield "printhead.segments", f"item {i}: start {s['start']:g} leaves a gap"
     if segs and segs[0]["start"] != 0:
         yield "printhead.segments", "the first segment must start at the nozzle tip (0)"
+    for key in SCRIPT_KEYS:
+        if (problem := script_problem(c[key])) is not None:
+            yield key, problem
     for process, machine in (("process.nozzle_temperature", "machine.max_hotend_temp"),
                              ("process.bed_temperature", "machine.max_bed_temp")):
         if c[process] > c[machine]:

@@ -64,6 +64,8 @@ class StreamSettings:
     angle_tolerance: float = 0.05
     temperature_tolerance: float = 5.0
     end_gcode: str = "M104 S0\nM140 S0\nM107\nG0 Z{safe_z} F3000\nG0 A0 C0 F3000\nM84\n"
+    end_values: dict[str, Any] = field(default_factory=dict)
+    """The end script's placeholders besides ``{safe_z}`` (the process settings)."""
 
 
 @dataclass
@@ -320,7 +322,8 @@ class Streamer:
     async def _finish_cancel(self) -> str:
         await self._drain()
         self.state = "cancelling"
-        end = self.settings.end_gcode.format(safe_z=f"{self._safe_z():.3f}")
+        end = self.settings.end_gcode.format_map(
+            {**self.settings.end_values, "safe_z": f"{self._safe_z():.3f}"})
         for raw in end.splitlines():
             cmd = raw.split(";", 1)[0].strip()
             if cmd:

@@ -86,6 +86,12 @@ def _error(text: str) -> str:
         ("machine:\n  nozzle_diameter: 0.6\nprocess:\n  line_width: 0.45\n",
          "config/hostd.yaml:4: process.line_width: 0.45 is narrower than 0.8 × "
          "machine.nozzle_diameter (0.48)"),
+        ("process:\n  start_gcode: \"G28\\nM104 S{nozzle_temp}\\n\"\n",
+         "config/hostd.yaml:2: process.start_gcode: unknown placeholder {nozzle_temp} "
+         "(known: "),
+        ("process:\n  end_gcode: \"G0 Z{safe_z F3000\"\n",
+         "config/hostd.yaml:2: process.end_gcode: expected '}' before end of string (write "
+         "{{ and }} for literal braces)"),
         ("machine:\n  max_hotend_temp: 200\n",
          "config/hostd.yaml: process.nozzle_temperature: 210 is above "
          "machine.max_hotend_temp (200)"),
@@ -133,3 +139,19 @@ def test_readme_tables_are_generated_from_the_schema_and_metrics() -> None:
     assert sync_readme(readme) == readme, "run `make docs` to regenerate the README tables"
     for name in readme_blocks():
         assert f"<!-- BEGIN {name} -->" in readme
+
+
+def test_every_placeholder_the_loader_accepts_is_one_the_daemon_can_fill() -> None:
+    """The end script runs from the daemon at a cancel: a placeholder the loader lets through
+    but the daemon cannot fill would fail only then, mid-print."""
+    from hostd.config.loader import defaults
+    from hostd.config.placeholders import known_names, script_problem
+    from hostd.daemon import stream_settings
+
+    settings = stream_settings(defaults())
+    for name in sorted(known_names()):
+        script = f"M117 {{{name}}}\n"
+        assert script_problem(script) is None
+        text = script.format_map({**settings.end_values, "safe_z": "1.000"})
+        assert "{" not in text and text != script, name
+    assert settings.end_values["nozzle_temperature"] == defaults()["process.nozzle_temperature"]
