@@ -10,7 +10,8 @@ from collections import deque
 from collections.abc import Iterator
 from typing import Any
 
-from hostd.cli.errors import EXIT_REFUSED, EXIT_UNREACHABLE, CliError
+from hostd.cli.errors import EXIT_REFUSED, EXIT_UNREACHABLE, EXIT_USAGE, CliError
+from hostd.control.rpc import UPLOAD_REJECTED
 
 DEFAULT_SOCKET = "/run/hostd/hostd.sock"
 
@@ -23,7 +24,8 @@ class RpcFailure(CliError):
     """The daemon answered with a JSON-RPC error."""
 
     def __init__(self, code: int, message: str) -> None:
-        super().__init__(message, EXIT_REFUSED)
+        # a refused upload is a bad input file (exit 2); the rest are refusals (exit 4)
+        super().__init__(message, EXIT_USAGE if code == UPLOAD_REJECTED else EXIT_REFUSED)
         self.rpc_code = code
 
 

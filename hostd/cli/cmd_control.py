@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from hostd.cli.client import Client, socket_path
-from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_REFUSED, EXIT_USAGE, CliError
+from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, CliError
 
 FINAL = {"completed", "failed", "cancelled", "interrupted"}
 PART_BYTES = 3 << 16
@@ -107,7 +107,7 @@ def cmd_print(args: argparse.Namespace) -> int:
         limit = c.call("server.info").get("max_upload_bytes")
         if isinstance(limit, int) and size > limit:  # before reading a file of any size
             raise CliError(f"{path}: {size} bytes exceeds the limit of {limit} bytes "
-                           "(daemon.max_upload_bytes)", EXIT_REFUSED)
+                           "(daemon.max_upload_bytes)", EXIT_USAGE)
         try:
             data = path.read_bytes()
         except OSError as exc:

@@ -55,13 +55,13 @@ async def test_hostctl_verbs_and_exit_codes(tmp_path):
             empty = tmp_path / "empty.gcode"
             empty.write_text("")
             rc, _, err = await hostctl(d.socket, "print", str(empty))
-            assert rc == 4 and "empty upload" in err
+            assert rc == 2 and "empty.gcode: empty upload" in err  # a bad input file
             rc, out, _ = await hostctl(d.socket, "print", str(gcode), "--json")
             assert rc == 0 and json.loads(out)["id"] == 2
             plain = tmp_path / "part.txt"  # an extension that says nothing
             plain.write_bytes(gcode.read_bytes())
             rc, _, err = await hostctl(d.socket, "print", str(plain))
-            assert rc == 4 and "give the kind (hostctl print --kind)" in err
+            assert rc == 2 and "give the kind (hostctl print --kind)" in err
             rc, out, _ = await hostctl(d.socket, "print", str(plain), "--kind", "gcode", "--json")
             assert rc == 0 and json.loads(out)["kind"] == "gcode"
             rc, out, _ = await hostctl(d.socket, "jobs", "--limit", "2")
@@ -109,7 +109,7 @@ async def test_hostctl_sends_a_large_file_in_parts(tmp_path):
             rc, out, _ = await hostctl(d.socket, "status", "--json")
             before = json.loads(out)["control"]["requests_total"]
             rc, _, err = await hostctl(d.socket, "print", str(too_big))
-            assert rc == 4 and f"exceeds the limit of {4 * PART_BYTES} bytes" in err
+            assert rc == 2 and f"exceeds the limit of {4 * PART_BYTES} bytes" in err
             assert str(too_big) in err and "daemon.max_upload_bytes" in err
             rc, out, _ = await hostctl(d.socket, "status", "--json")
             # refused from the file's size: no part was sent (nor the file read)
