@@ -177,6 +177,9 @@ def _problems(c: Config) -> Iterator[tuple[str, str]]:
             yield "printhead.segments", f"item {i}: start {s['start']:g} leaves a gap"
     if segs and segs[0]["start"] != 0:
         yield "printhead.segments", "the first segment must start at the nozzle tip (0)"
+    if c["sim.silence_at_line"] and not c["sim.silence_lines"]:
+        yield "sim.silence_at_line", ("silences nothing with sim.silence_lines 0 (the lines to "
+                                      "swallow without answer)")
     for key in SCRIPT_KEYS:
         if (problem := script_problem(c[key])) is not None:
             yield key, problem

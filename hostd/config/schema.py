@@ -208,7 +208,9 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                  hi=256, integer=True),
         "reset_at_line": Number("Reboot after executing this many lines; 0 = never.", 0, lo=0,
                                 hi=2**31 - 1, integer=True),
-        "silence_at_line": Number("Go silent after executing this many lines; 0 = never.", 0,
+        "silence_at_line": Number("Go silent after executing this many lines (for "
+                                  "sim.silence_lines lines, which must then be above 0); "
+                                  "0 = never.", 0,
                                   lo=0, hi=2**31 - 1, integer=True),
         "silence_lines": Number("Received lines swallowed without answer when silent.", 0,
                                 lo=0, hi=2**31 - 1, integer=True),

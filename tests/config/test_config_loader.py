@@ -92,6 +92,8 @@ def _error(text: str) -> str:
         ("process:\n  end_gcode: \"G0 Z{safe_z F3000\"\n",
          "config/hostd.yaml:2: process.end_gcode: expected '}' before end of string (write "
          "{{ and }} for literal braces)"),
+        ("sim:\n  silence_at_line: 40\n",
+         "config/hostd.yaml:2: sim.silence_at_line: silences nothing with sim.silence_lines 0"),
         ("machine:\n  max_hotend_temp: 200\n",
          "config/hostd.yaml: process.nozzle_temperature: 210 is above "
          "machine.max_hotend_temp (200)"),
