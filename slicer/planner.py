@@ -193,7 +193,7 @@ def _base_centre(solid: m3.Manifold, point: np.ndarray, normal: np.ndarray,
 
 def _march(settings: ProcessSettings) -> MarchSettings:
     return MarchSettings(settings.layer_height, settings.min_layer_factor,
-                         settings.max_layer_factor)
+                         settings.max_layer_share())
 
 
 @dataclass

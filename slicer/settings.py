@@ -8,6 +8,10 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+MAX_BEAD_SHARE = 0.8
+"""A bead's thickness (a layer's, locally) is at most this share of the nozzle diameter:
+thicker, it neither presses onto the layer below nor keeps its width."""
+
 
 @dataclass(frozen=True)
 class ProcessSettings:
@@ -44,6 +48,13 @@ class ProcessSettings:
     linearize_tolerance: float = 0.01
     start_gcode: str = "G28\nG92 E0\n"
     end_gcode: str = "M104 S0\nM140 S0\nM84\n"
+
+    def max_layer_share(self) -> float:
+        """Largest local layer thickness as a share of ``layer_height``: ``max_layer_factor``,
+        capped so that no bead is thicker than :data:`MAX_BEAD_SHARE` × the nozzle (never
+        below 1: a layer parallel to the one below is always ``layer_height`` thick)."""
+        cap = MAX_BEAD_SHARE * self.nozzle_diameter / self.layer_height
+        return max(1.0, min(self.max_layer_factor, cap))
 
     def header(self) -> dict[str, float]:
         """The ``;HOSTD_PROCESS`` header payload."""

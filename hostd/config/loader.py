@@ -16,6 +16,7 @@ import yaml
 from hostd.config.fields import FieldError
 from hostd.config.placeholders import SCRIPT_KEYS, script_problem
 from hostd.config.schema import SCHEMA
+from slicer.settings import MAX_BEAD_SHARE
 
 
 class ConfigError(Exception):
@@ -187,7 +188,7 @@ def _problems(c: Config) -> Iterator[tuple[str, str]]:
                              ("process.bed_temperature", "machine.max_bed_temp")):
         if c[process] > c[machine]:
             yield process, f"{c[process]:g} is above {machine} ({c[machine]:g})"
-    bound = c["machine.nozzle_diameter"] * 0.8
+    bound = c["machine.nozzle_diameter"] * MAX_BEAD_SHARE
     if c["process.line_width"] < bound:
         yield "process.line_width", (f"{c['process.line_width']:g} is narrower than 0.8 × "
                                      f"machine.nozzle_diameter ({bound:g})")

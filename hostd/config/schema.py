@@ -93,7 +93,8 @@ SCHEMA: dict[str, dict[str, Field]] = {
                               lo=1, hi=700),
         "min_layer_factor": Number("Smallest local layer thickness as a share of t.", 0.5,
                                    lo=0.1, hi=1.0),
-        "max_layer_factor": Number("Largest local layer thickness as a share of t.", 1.5,
+        "max_layer_factor": Number("Largest local layer thickness as a share of t (capped at "
+                                   "0.8 × machine.nozzle_diameter).", 1.5,
                                    lo=1.0, hi=3.0),
         "interface_layers": Number("Solid parent layers under a child's base.", 3, lo=0,
                                    hi=50, integer=True),

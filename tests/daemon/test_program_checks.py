@@ -62,7 +62,8 @@ def test_one_bad_line_among_many_is_found():
         parse_program("\n".join(lines) + "\n")
 
 
-WORDS = ["G1", "G0", "M117", "M104", "T0", "G", "%", "(c)", "N7", "hello", "X1", "Y2.5", "E0.04", "F1800", "X1e3", "X1e400", "Xnan",
+WORDS = ["G1", "G0", "M117", "M104", "T0", "G", "%", "(c)", "N7", "hello", "X1", "Y2.5",
+         "E0.04", "F1800", "X1e3", "X1e400", "Xnan",
          "Yinf", "E-INF", "NaN", "info", "S210", "; note", "; infill", "(nan)", "a\x1ab",
          "\x07", "\t", "1.e5", "Z.5E-2", "\r", "\x0b", "\u2028", "\x85", "X\u0661e400", "X1_0e400"]
 MARKERS = [';HOSTD_LAYER {"index": 1, "note": 1e-16}', ';HOSTD_ESTIMATE {"infill": 0.2}']

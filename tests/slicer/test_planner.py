@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import itertools
 import os
 from concurrent.futures import Executor, Future
 from concurrent.futures.process import BrokenProcessPool
@@ -93,6 +94,27 @@ def test_child_layers_turn_from_base_to_axis_within_bounds(leaning_plan) -> None
             assert p.height.max() <= S.max_layer_factor * 0.2 + 1e-9
     c = np.array([la.c for la in child.layers[1:]])
     assert np.abs(np.diff(c)).max() < 1.0  # C continuity
+
+
+def test_no_bead_is_thicker_than_the_nozzle_allows(leaning) -> None:
+    """With t = 0.3 on a 0.4 mm nozzle, 1.5 t (0.45 mm) would not press onto the layer below:
+    the local thickness is capped at 0.8 × the nozzle (0.32 mm). The planes then turn more
+    slowly (the slack above t is 0.02 mm, not 0.15): the child still turns toward its rod,
+    monotonically, without reaching it before the rod ends (docs/slicing.md)."""
+    from dataclasses import replace
+
+    thick = replace(S, layer_height=0.3)
+    assert thick.max_layer_share() == pytest.approx(0.32 / 0.3)
+    assert S.max_layer_share() == S.max_layer_factor  # 0.3 mm: under the cap already
+    child = plan_print(leaning, thick, G, Printhead.default()).subparts[1]
+    lo, hi = child.thickness_range
+    assert hi <= 0.32 + 1e-9 and lo >= 0.5 * 0.3 - 1e-9
+    assert max(p.height.max() for la in child.layers for p in la.paths) <= 0.32 + 1e-9
+    assert hi > 0.3  # the planes still turn
+    toward = [la.normal @ AXIS for la in child.layers]
+    assert toward[0] == pytest.approx(np.cos(TILT))  # flat on the parent
+    assert toward[-1] > np.cos(np.radians(20.0))  # turned more than 10° of the 30°
+    assert all(b >= a - 1e-9 for a, b in itertools.pairwise(toward))
 
 
 def test_child_paths_stay_inside_the_rod(leaning_plan) -> None:
