@@ -72,6 +72,7 @@ PARAMS = {  # every method's parameters (printer.estop left out: it halts the em
     "job.list": ["states", "limit"], "job.get": ["id"], "job.pause": ["id", "wait"],
     "job.resume": ["id", "from"], "job.cancel": ["id", "wait"], "job.delete": ["id"],
     "events.subscribe": ["events"], "events.unsubscribe": [], "sim.log": ["since"],
+    "queue.status": [], "queue.start": [], "queue.hold": [], "printer.firmware_restart": [],
 }
 TOKENS = ["a", "\ud800", "\udfff", "\x00", "\x07", ".gcode", ".stl", "é", "G1 X", "nan", "1e400",
           "\n", " ", "QUJD", "==", "G28", ";HOSTD_LAYER {", "gcode", "text", "layer"]
