@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 MAX_BEAD_SHARE = 0.8
@@ -23,6 +24,7 @@ class ProcessSettings:
     infill_density: float = 0.2
     infill_angle: float = 45.0
     solid_layers: int = 3
+    min_shell_thickness: float = 0.6
     print_speed: float = 40.0
     perimeter_speed: float = 30.0
     first_layer_speed: float = 15.0
@@ -48,6 +50,12 @@ class ProcessSettings:
     linearize_tolerance: float = 0.01
     start_gcode: str = "G28\nG92 E0\n"
     end_gcode: str = "M104 S0\nM140 S0\nM84\n"
+
+    def skin_layers(self) -> int:
+        """Solid layers at the bottom and top: ``solid_layers``, or more when layers are thin,
+        so that the skin is at least ``min_shell_thickness`` thick (0.05 mm layers: 12)."""
+        need = math.ceil(self.min_shell_thickness / self.layer_height - 1e-9)
+        return max(self.solid_layers, need)
 
     def max_layer_share(self) -> float:
         """Largest local layer thickness as a share of ``layer_height``: ``max_layer_factor``,

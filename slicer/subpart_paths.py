@@ -147,7 +147,7 @@ class LayerJob:
         """Layer i's solid zone (skins and wall footing), interface zone and its child."""
         s = self.settings
         domains, inners = _Shells(self.shells, "domain"), _Shells(self.shells, "inner")
-        solid = _union(solid_zone(self.layers, i, s.solid_layers, self.grounded, domains[i]),
+        solid = _union(solid_zone(self.layers, i, s.skin_layers(), self.grounded, domains[i]),
                        wall_footing(self.layers, i, inners, domains, s.line_width))
         t = s.layer_height
         izone, owner = layer_interface(self.layers[i], self.bases, s.interface_layers * t, t,

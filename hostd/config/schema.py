@@ -81,6 +81,9 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                hi=180),
         "solid_layers": Number("Solid layers at the bottom and top of every sub-part.", 3,
                                lo=0, hi=50, integer=True),
+        "min_shell_thickness": Number("Bottom and top skins at least this thick, mm: thin "
+                                      "layers get more than solid_layers.", 0.6, lo=0,
+                                      hi=10),
         "print_speed": Number("Infill speed, mm/s.", 40.0, lo=1, hi=500),
         "perimeter_speed": Number("Perimeter speed, mm/s.", 30.0, lo=1, hi=500),
         "first_layer_speed": Number("Speed of a sub-part's first layer, mm/s.", 15.0, lo=1,

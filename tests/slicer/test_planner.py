@@ -79,6 +79,21 @@ def test_planar_cylinder_is_flat_exact_and_inside() -> None:
     assert sub.layers[0].paths[0].speed == S.first_layer_speed
 
 
+def test_thin_layers_get_skins_of_the_minimum_thickness() -> None:
+    """3 solid layers of 0.05 mm would leave a 0.15 mm skin over sparse infill: the skins
+    are at least min_shell_thickness (0.6 mm) thick, 12 layers; at 0.2 mm nothing changes."""
+    from dataclasses import replace
+
+    thin = replace(S, layer_height=0.05)
+    assert (thin.skin_layers(), S.skin_layers()) == (12, S.solid_layers)
+    plan = plan_planar(to_trimesh(m3.Manifold.cylinder(2.0, 6.0, 6.0, 64)), thin, G)
+    (sub,) = plan.subparts
+    kinds = [{p.kind for p in la.paths} for la in sub.layers]
+    assert len(kinds) == 40
+    assert all("solid" in k and "infill" not in k for k in kinds[:12] + kinds[-12:])
+    assert all("infill" in k and "solid" not in k for k in kinds[12:-12])
+
+
 def test_child_layers_turn_from_base_to_axis_within_bounds(leaning_plan) -> None:
     _root, child = leaning_plan.subparts
     assert [s.index for s in leaning_plan.subparts] == [0, 1] and child.parent == 0
