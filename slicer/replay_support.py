@@ -3,11 +3,12 @@
 Rule (issue 8): a point p with nozzle axis u is *supported* when the material of a bead
 deposited in an earlier layer lies beneath it, at a depth ``0 < d ≤ 1.5 · max(t, h)`` along u
 (t the nominal layer height, h the point's own bead height: wedge layers may be up to 1.5 t
-thick), with the bead's centreline at a lateral offset ``≤ d · tan 45° + 0.1 w`` (w the line
-width). The material's depth is the centreline's, less how far the bead reaches towards p
-across its path (half a width times the share of u across the bead): 0 when both layers share
-an axis (the tip is the top of the bead), half a width where a branch's first layer stands on
-the flank of its parent's beads, a base plane across the parent's layers. A point is also
+thick; one t deeper when t < 0.4 w, see :func:`depth_limit`), with the bead's centreline
+at a lateral offset ``≤ d · tan 45° + 0.1 w`` (w the line width). The material's depth is
+the centreline's, less how far the bead reaches towards p across its path (half a width
+times the share of u across the bead): 0 when both layers share an axis (the tip is the top
+of the bead), half a width where a branch's first layer stands on the flank of its parent's
+beads, a base plane across the parent's layers. A point is also
 supported when the platform (z = 0, within its radius) lies within that depth along the axis.
 Samples stand for their piece of centreline (``Samples.step``), so the spacing of the samples
 along a path adds no offset. The same rule is applied to every point; wall points (within
@@ -30,6 +31,7 @@ from slicer.replay_kdtree import point_tree
 from slicer.replay_samples import Samples
 
 DEPTH_FACTOR = 1.5
+THIN_LAYER = 0.4  # x line width: thinner layers, the cone one layer down misses w/2
 OVERHANG_DEG = 45.0
 LATERAL_SLACK = 0.1  # × line width
 WALL_SLACK = 0.75  # × line width: wall points are this close to the surface
@@ -38,9 +40,17 @@ NEIGHBOURS = 10
 CHUNK_PAIRS = 1 << 17  # (sample, candidate) pairs tested at once: 3 MiB per (pairs, 3) array
 
 
-def depth_limit(s: Samples, layer_height: float) -> np.ndarray:
-    """Largest depth searched beneath each sample, (n,)."""
-    return DEPTH_FACTOR * np.maximum(layer_height, s.h) + 1e-6
+def depth_limit(s: Samples, layer_height: float, line_width: float | None = None
+                ) -> np.ndarray:
+    """Largest depth searched beneath each sample, (n,): ``DEPTH_FACTOR`` times its layer's
+    thickness, and with ``line_width`` one layer more when layers are thinner than
+    ``THIN_LAYER`` times the width. The 45 degree cone one layer down is then narrower than
+    half a line (t + 0.1 w < w/2): a solid line crossing the lines below at 90 degrees,
+    between two of them, finds no support there; the layer under those runs its way."""
+    dmax = DEPTH_FACTOR * np.maximum(layer_height, s.h) + 1e-6
+    if line_width is not None and layer_height < THIN_LAYER * line_width:
+        dmax = dmax + layer_height
+    return dmax
 
 
 def _check(s: Samples, top: np.ndarray, below: np.ndarray, dmax: np.ndarray,
@@ -113,7 +123,7 @@ def strict_support(s: Samples, layer_height: float, line_width: float,
     layers is farther from there, so the nearest candidates are the supporting ones.
     """
     judged = np.arange(len(s)) if judged is None else judged
-    dmax = depth_limit(s, layer_height)
+    dmax = depth_limit(s, layer_height, line_width)
     slack = LATERAL_SLACK * line_width
     ok = np.zeros(len(judged), dtype=bool)
     for chunk in support_chunks(len(judged), 1):
