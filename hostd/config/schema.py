@@ -148,6 +148,9 @@ SCHEMA: dict[str, dict[str, Field]] = {
                             lo=0.0, hi=0.9),
         "ok_timeout": Number("Seconds without an ok before nudging with M105.", 10.0,
                              lo=0.05, hi=3600),
+        "starve_timeout": Number("Seconds without an ok while lines wait for credit before "
+                                 "an M105 goes out past the window (a lost ok stalls the "
+                                 "stream until its ok T:); 0: off.", 1.0, lo=0.0, hi=3600),
         "nudges": Number("M105 nudges after successive timeouts before the link is lost.", 1,
                          lo=1, hi=100, integer=True),
         "resend_limit": Number("Resends of one line before the job fails.", 10, lo=1,

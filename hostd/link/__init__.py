@@ -70,6 +70,7 @@ getting it back.
 ``temperatures`` (heater → actual/target/power), ``position`` (X, Y, Z, A, C, E),
 ``lines_sent``, ``lines_acked``, ``lines_resent``, ``lines_split`` (lines sent in parts),
 ``resend_requests``, ``duplicate_resends``, ``checksum_errors``, ``line_errors``, ``timeouts``,
+``starve_nudges`` (M105 sent after ``serial.starve_timeout`` while lines waited for credit),
 ``resets``, ``window_bytes``,
 ``flow_control``, ``inflight_lines``, ``inflight_bytes``, ``queued_lines``, ``planner_free``,
 ``buffer_free``, ``advanced_ok``, ``ok_rtt`` (count, last/mean/max ms), ``reconnects``,

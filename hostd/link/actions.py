@@ -49,7 +49,8 @@ class Failed:
 @dataclass(frozen=True)
 class Notice:
     """Something went wrong on the wire and the link is recovering: for the operator's log.
-    ``kind`` is ``timeout`` (a nudge) or ``resend``."""
+    ``kind`` is ``timeout`` (a nudge), ``starved`` (an early M105 while lines waited for
+    credit) or ``resend``."""
 
     kind: str
     message: str

@@ -35,6 +35,34 @@ rejects (bad checksum, wrong number) is answered at once, out of order, by ``Err
   without any ``ok`` declares the link lost. ``busy:`` and the temperature line an ``M109``
   or ``M190`` prints each second while it waits (``W:``) put the timeout off.
 
+Starved: a lost ``ok`` leaves one line counted in flight that the firmware has executed, so
+the credit is short by that line's bytes. With long lines that is enough for the next line to
+wait for credit, or go out only in part while the firmware, having executed everything it got
+whole, waits in silence for the rest: nothing would move until the timeout. So when lines
+wait for credit and ``starve_timeout`` passes without progress (an ``ok``, ``busy:``, ``W:``),
+the link nudges without releasing any credit (the firmware may be busy rather than idle, a
+long move with the planner full, its receive buffer then really as full as counted):
+
+- a line going out in parts is finished past the credit, then an ``M105`` follows, whose
+  ``ok T:`` resynchronises the count. A line in parts that is itself an ``M105`` needs no
+  other, nor does one finishing a resend (a new number would be out of turn);
+- with no line in parts (whole lines only, ping-pong) an ``M105`` goes out past the credit,
+  or the next line of a resend under way.
+
+What goes past the credit is at most what a busy firmware's buffer surely has free: the
+oldest line counted in flight has been read out of it (every line before it was answered, so
+it is in the command queue, or executed and its ``ok`` lost). If the rest of the line in
+parts does not fit, nothing goes out and the timeout follows as before; if the ``M105`` after
+it does not, it goes first in the queue, in credit (the ``ok`` of the finished line frees
+what it needs). While an ``M105`` sent is still to be answered no other is sent (were its
+``ok T:`` lost, each new one's would be taken for the one before's, a stall at every line):
+the next line goes instead, or nothing.
+
+One such nudge per stretch: the next waits for an ``ok`` (a keepalive every 2 s during a long
+command would otherwise bring one each time). It is no step towards a lost link: the
+timeout's clock and its nudge count are untouched. A long move (over ``starve_timeout`` while
+lines wait) is nudged too: one ``M105`` more in the stream.
+
 Lines in parts (``partial_lines``, window mode)
 -----------------------------------------------
 The receive buffer holds bytes, not lines, so when the credit is short of the next line its
@@ -115,6 +143,9 @@ class Protocol:
         self.state = "disconnected"
         self.window = SendWindow(settings.flow_control, settings.rx_buffer_bytes)
         self._out: list[Action] = []
+        # the wait before a starve nudge; 0: off (one at or after the ok timeout never comes)
+        self._starve_timeout = settings.starve_timeout \
+            if settings.starve_timeout < settings.ok_timeout else 0.0
         self._clear(0.0)
 
     # -- entry points -------------------------------------------------------------------
@@ -208,7 +239,10 @@ class Protocol:
             if self.state == "handshake":
                 self._handshake_timeout(now)
             elif self.state == "ready":
-                self._ok_timeout(now)
+                if now >= self._progress + self.settings.ok_timeout:
+                    self._ok_timeout(now)
+                else:  # the earlier deadline is the starve nudge's
+                    self._starve_nudge(now)
         self._pump(now)
         return self._flush()
 
@@ -217,6 +251,9 @@ class Protocol:
         if self.state == "handshake":
             return self._progress + self.settings.handshake_timeout
         if self.state == "ready" and (self._sent_max > self._executed or self._inflight):
+            if self._starve_wait and (self._partial is not None or self._pending
+                                      or self._resend):
+                return self._progress + self._starve_wait  # lines wait for credit: "Starved"
             return self._progress + self.settings.ok_timeout
         return None
 
@@ -283,6 +320,7 @@ class Protocol:
         self._partial: Sent | None = None  # the line going out in parts, if any
         self._after_resend: int | None = None
         self._nudged = 0
+        self._starve_wait = self._starve_timeout  # 0 once a nudge went out, until an ok
         self._progress = now
         self._attempts = 0
         self._resend_counts: dict[int, int] = {}
@@ -423,6 +461,7 @@ class Protocol:
     def _on_ok(self, ok: Ok, now: float) -> None:
         self._progress = now
         self._nudged = 0
+        self._starve_wait = self._starve_timeout
         if self.state == "handshake":
             self._handshake_ok(now)
             return
@@ -466,6 +505,7 @@ class Protocol:
         """
         self._progress = now
         self._nudged = 0
+        self._starve_wait = self._starve_timeout
         for ok in oks:
             if ok.line is not None and ok.buffer_free is not None:  # in order, as _on_ok
                 self.observed.update(ok)
@@ -703,6 +743,7 @@ class Protocol:
             return
         self._nudged += 1
         self._progress = now
+        self._starve_wait = 0.0  # this nudge's ok T: resynchronises as a starve nudge's
         self._out.append(Notice("timeout", (
             f"no ok for {self.settings.ok_timeout:g} s (line {self._executed + 1} awaited, "
             f"{self._sent_max} sent): {NUDGE} nudge {self._nudged} of {self.settings.nudges}")))
@@ -719,7 +760,86 @@ class Protocol:
             self._m105.append(partial.number)
         self._finish_partial()
         if not self._resend:
-            self._transmit(Item(NUDGE, None, "nudge"), now)
+            pending = self._pending
+            # a starve nudge's M105 still queued is this nudge: one M105, not two
+            queued = pending[0].kind == "nudge" if pending else False
+            self._transmit(pending.popleft() if queued else Item(NUDGE, None, "nudge"), now)
+
+    def _starve_nudge(self, now: float) -> None:
+        """Lines have waited for credit ``starve_timeout`` without progress: see "Starved" in
+        the module docstring. Once until the next ``ok``, whether it sends or not (an ``M105``
+        it queued and could not send goes out in turn)."""
+        self._starve_wait = 0.0
+        room = self._starve_room()
+        partial = self._partial
+        if partial is not None:
+            rest = len(partial.item.data) - partial.written
+            if rest > room:
+                return  # a buffer this full may be busy: the timeout will tell
+            self._finish_partial()
+            room -= rest
+            # the M105 after it, if one is due; it waits in the queue if it does not fit
+            tickle = None if self._resend or self._m105_due() else self._tickle()
+        else:
+            tickle = self._tickle()
+            if tickle is None or len(tickle.data) > room:
+                return
+        if tickle is not None and len(tickle.data) <= room:
+            queue = self._resend or self._pending
+            if queue and queue[0] is tickle:
+                queue.popleft()
+            self._transmit(tickle, now)
+        self.counters.starve_nudges += 1
+        self._out.append(Notice("starved", (
+            f"no ok for {self._starve_timeout:g} s while lines wait for credit (line "
+            f"{self._executed + 1} awaited, {self._sent_max} sent): nudged past the credit "
+            f"(a lost ok, or a long move)")))
+
+    def _m105_due(self) -> bool:
+        """Whether an ``M105`` sent is still to be answered (the line in parts, if one).
+
+        Its ``ok T:`` will resynchronise the count, or was lost; then the answer of an
+        ``M105`` sent now would be taken for the lost one's (the oldest due), leaving the
+        count one behind again at every nudge."""
+        m105 = self._m105
+        return bool(m105) and m105[-1] > self._executed
+
+    def _queue_nudge(self) -> None:
+        """Put a numbered ``M105`` first in the queue, unless one is there already."""
+        pending = self._pending
+        if not (pending and _is_m105(pending[0].command)):
+            pending.appendleft(Item(NUDGE, None, "nudge"))
+
+    def _tickle(self) -> Item | None:
+        """What the starve nudge sends past the credit when no line is in parts: the next
+        line of a resend under way (any other number would be rejected as out of turn), an
+        ``M105`` (the first queued line if it is one), or while one is still to be answered
+        (:meth:`_m105_due`), the next line."""
+        if self._resend:
+            return self._resend[0]
+        if not self._m105_due():
+            self._queue_nudge()
+        if not self._pending:
+            return None
+        item = self._pending[0]
+        if item.number is None and item.framed_as != self._next:
+            self._frame(item)
+        return item
+
+    def _starve_room(self) -> int:
+        """Bytes the firmware's receive buffer surely has free were it busy, not starved:
+        the buffer less the bytes counted in flight, bar the transmission of the oldest
+        line (every line before it was answered, so the firmware has read it out into its
+        command queue). With ADVANCED_OK the lines known read out are left out already."""
+        if self._read_through > self._executed:
+            return self.settings.rx_buffer_bytes \
+                - self._inflight.after_first(self._read_through)[1]
+        nbytes = self._inflight.bytes
+        oldest = self._inflight.first_from(self._executed + 1)
+        if oldest is not None and oldest.number == self._executed + 1 and oldest.counted \
+                and oldest is not self._partial:
+            nbytes -= oldest.written
+        return self.settings.rx_buffer_bytes - nbytes
 
     _handlers: ClassVar[dict[type, Any]] = {
         Ok: _on_ok, Resend: _on_resend, ErrorReply: _on_error, Busy: _on_busy,

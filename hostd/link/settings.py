@@ -36,6 +36,11 @@ class LinkSettings:
         reply as it arrives.
     ok_timeout
         Seconds without progress before the M105 nudge; as long again before the link is lost.
+    starve_timeout
+        Seconds without progress, while lines wait for credit, before the line going out in
+        parts is finished and an ``M105`` is sent past the credit (its ``ok T:`` makes up for
+        a lost ``ok``); at most once until the next ``ok``, and no step towards a lost link.
+        0 (or ``ok_timeout`` or more) turns it off.
     nudges
         ``M105`` nudges sent after successive timeouts before the link is declared lost.
     resend_limit
@@ -59,6 +64,7 @@ class LinkSettings:
     partial_lines: bool = True
     read_hold: float = 0.7
     ok_timeout: float = 10.0
+    starve_timeout: float = 1.0
     nudges: int = 1
     resend_limit: int = 10
     history_size: int = 1024
@@ -76,7 +82,7 @@ def link_settings_from_config(cfg: Config) -> LinkSettings:
         port=s["port"], baud=int(s["baud"]), flow_control=s["flow_control"],
         rx_buffer_bytes=int(s["rx_buffer_bytes"]), partial_lines=bool(s["partial_lines"]),
         read_hold=float(s["read_hold"]),
-        ok_timeout=float(s["ok_timeout"]),
+        ok_timeout=float(s["ok_timeout"]), starve_timeout=float(s["starve_timeout"]),
         nudges=int(s["nudges"]),
         resend_limit=int(s["resend_limit"]), history_size=int(s["history_size"]),
         handshake_timeout=float(s["handshake_timeout"]),

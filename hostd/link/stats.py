@@ -22,6 +22,7 @@ class LinkCounters:
     checksum_errors: int = 0
     line_errors: int = 0
     timeouts: int = 0
+    starve_nudges: int = 0  # nudges of lines starved of credit with no ok (protocol: Starved)
     resets: int = 0
     waits: int = 0
 

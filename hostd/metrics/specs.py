@@ -99,6 +99,9 @@ SPECS: tuple[Spec, ...] = (
          "link.lines_sent"),
     Spec("hostd_serial_lines_acknowledged_total", "counter", "Lines the firmware acknowledged.",
          "link.lines_acked"),
+    Spec("hostd_serial_starve_nudges_total", "counter", "M105 nudges after "
+         "serial.starve_timeout without an ok while lines waited for credit (a lost ok, or a "
+         "long move).", "link.starve_nudges"),
     Spec("hostd_serial_lines_resent_total", "counter", "Lines sent again after a resend request.",
          "link.lines_resent"),
     Spec("hostd_serial_reads_total", "counter", "Port reads that brought replies (while reads "

@@ -53,11 +53,13 @@ def stream_planner_bound(advanced_ok: bool, bit_flip_prob: float = 0.0,
                          partial: bool = False) -> VirtualBench:
     """Long moves: the planner is full, commands wait in the queue, the buffer fills; after
     each command the main loop leaves the buffer alone for a while (so a line the host wrongly
-    believes read out is still there)."""
+    believes read out is still there). No starve nudges: on the long moves they go past the
+    credit on purpose (``tests/link/test_starve_nudge.py``); these tests are about the credit."""
     commands = [f"G1 X{i % 50 * 2} Y{i % 7} F600" for i in range(400)]
     sim = SimSettings(rx_buffer_bytes=63, queue_slots=4, advanced_ok=advanced_ok,
                       bit_flip_prob=bit_flip_prob, read_delay=0.003, seed=3)
-    link = LinkSettings(rx_buffer_bytes=63, partial_lines=partial, ok_timeout=30.0, nudges=3)
+    link = LinkSettings(rx_buffer_bytes=63, partial_lines=partial, ok_timeout=30.0, nudges=3,
+                        starve_timeout=0.0)
     bench = VirtualBench(link, sim)
     assert bench.connect()
     bench.stream(commands)
