@@ -167,6 +167,8 @@ class Daemon:
         delay = s.reconnect_min
         while True:
             await asyncio.sleep(delay)  # backoff period, not synchronisation
+            if self.link.connected:  # a firmware-restart got there first: no second reset
+                return
             try:
                 await self.link.connect()
             except LinkError as exc:

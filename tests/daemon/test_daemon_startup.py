@@ -78,3 +78,34 @@ async def test_the_watchdog_is_withheld_naming_what_killed_a_task(tmp_path: Path
     running.cancel()
     await asyncio.gather(running, return_exceptions=True)
     assert daemon.dead_tasks() == ["temps: cancelled", "slice-loop: RuntimeError('loop broke')"]
+
+
+class _Link:
+    """Stands in for the serial link: connected already, counting connect calls."""
+
+    def __init__(self) -> None:
+        from hostd.link.settings import LinkSettings
+
+        self.settings = LinkSettings(reconnect_min=0.01, reconnect_max=0.01)
+        self.connected = True
+        self.connects = 0
+
+    async def connect(self) -> None:
+        self.connects += 1
+
+
+@pytest.mark.asyncio
+@pytest.mark.timeout(30)
+async def test_the_link_supervisor_does_not_reset_a_link_a_restart_connected():
+    """The first connection failed and the supervisor retries; meanwhile the operator's
+    firmware-restart connected the link. The supervisor must not connect (reset the board)
+    a second time, maybe under a job that has started since."""
+    from hostd.config.loader import defaults
+    from hostd.daemon import Daemon
+
+    daemon = Daemon(defaults())
+    link = _Link()
+    daemon.link = link  # type: ignore[assignment]
+    async with asyncio.timeout(10):
+        await daemon._link_supervisor()
+    assert link.connects == 0
