@@ -6,11 +6,14 @@ control: across a section of radius ρ a turn of Δθ changes the thickness by a
 Here the planes are *marched*:
 
 * layer i's plane passes through the curve point whose height above plane i−1 (along its
-  normal) is exactly t, so the thickness on the skeleton is always t;
+  normal) is exactly t, so the thickness on the skeleton is t (but see lopsided bounds);
 * its normal turns from n_{i−1} towards τ(s_i) by at most
   Δθ_max = atan(m·min(1 − f_min, f_max − 1)·t / ρ), ρ the extent of the previous section
   around its origin, m = :data:`TOL.turn_margin`; the exact local thickness over the new
   section is then measured and the turn halved until it lies in [f_min·t, f_max·t];
+* when the bounds are lopsided (f_max − 1 < 1 − f_min: a thickness cap at a large t) and the
+  curve needs more turn than that allows, the plane sits (f_min + f_max)/2·t above the one
+  below instead, with m·(f_max − f_min)/2·t to turn by (:func:`_step`);
 * a caller's ``accept`` hook (reachable A, no collision) may reject a plane: the turn is
   halved down to zero (the previous normal) before :class:`SlicingError` is raised;
 * the first layer is parallel to the base plane (a child starts flat on its parent).
@@ -149,13 +152,15 @@ class MarchSettings:
 
 
 def _try_plane(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray,
-               below: tuple[np.ndarray, np.ndarray], ms: MarchSettings
-               ) -> tuple[BaseGeometry, tuple[float, float]]:
-    """Mid-layer region and its thickness range for one candidate plane."""
-    region = section(solid, origin - 0.5 * ms.t * frame[2], frame)
+               below: tuple[np.ndarray, np.ndarray], ms: MarchSettings,
+               t_here: float | None = None) -> tuple[BaseGeometry, tuple[float, float]]:
+    """Mid-layer region and its thickness range for one candidate plane, ``t_here`` (else
+    t) above the one below on the skeleton."""
+    t = ms.t if t_here is None else t_here
+    region = section(solid, origin - 0.5 * t * frame[2], frame)
     xy = shapely.get_coordinates(region)
     if len(xy) == 0:
-        return region, (ms.t, ms.t)
+        return region, (t, t)
     h = local_thickness(from_plane(xy, origin, frame), frame[2], below)
     return region, (float(h.min()), float(h.max()))
 
@@ -190,14 +195,10 @@ def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLik
     below = (np.asarray(base_origin, dtype=float), unit(base_normal)[0][0])
     frame = plane_frame(below[1])
     s_prev, radius = 0.0, 0.0
-    slack = TOL.turn_margin * min(1.0 - ms.f_min, ms.f_max - 1.0) * ms.t
     for i in range(ms.max_layers):
-        s = _advance(curve, s_prev, below, ms.t)
-        origin = curve.point(s)[0]
-        origin = origin + (ms.t - (origin - below[0]) @ below[1]) * below[1]  # exactly t above
-        target = curve.tangent(s)[0] if i else below[1]
-        max_turn = float(np.degrees(np.arctan2(slack, radius))) if radius > 0 else 0.0
-        layer = _choose(solid, origin, frame, below, target, max_turn, ms, accept, subpart, i)
+        s, origin, target, max_turn, t_here = _step(curve, s_prev, below, radius, ms, i)
+        layer = _choose(solid, origin, frame, below, target, max_turn, ms, accept, subpart, i,
+                        t_here)
         if layer is None:
             break
         layer.s = s
@@ -206,17 +207,51 @@ def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLik
         radius = region_radius(layer.region) + 2.0 * ms.t
 
 
+def _step(curve: SkeletonCurve, s_prev: float, below: tuple[np.ndarray, np.ndarray],
+          radius: float, ms: MarchSettings, index: int
+          ) -> tuple[float, np.ndarray, np.ndarray, float, float]:
+    """The next plane's arc length, origin, target normal, largest turn (degrees) and its
+    thickness on the skeleton.
+
+    That thickness is t, and the turn may use ``m·min(1 − f_min, f_max − 1)·t`` of it across
+    the section, unless the bounds are lopsided (f_max − 1 < 1 − f_min: the thickness cap of
+    :meth:`~slicer.settings.ProcessSettings.max_layer_share` at a large t) and the target
+    needs more turn than that: then the plane sits at the middle of the bounds,
+    (f_min + f_max)/2·t above the one below, and may use ``m·(f_max − f_min)/2·t`` (a thinner
+    layer on the skeleton while it turns, rather than a turn that lags behind the curve)."""
+    sym = min(1.0 - ms.f_min, ms.f_max - 1.0)
+    half_span = 0.5 * (ms.f_max - ms.f_min)
+    t_here, slack = ms.t, sym
+    for _ in range(2):
+        s = _advance(curve, s_prev, below, t_here)
+        origin = curve.point(s)[0]
+        origin = origin + (t_here - (origin - below[0]) @ below[1]) * below[1]  # t_here above
+        target = curve.tangent(s)[0] if index else below[1]
+        max_turn = _max_turn(TOL.turn_margin * slack * ms.t, radius)
+        need = float(np.degrees(np.arccos(np.clip(target @ below[1], -1.0, 1.0))))
+        lopsided = ms.f_max - 1.0 < 1.0 - ms.f_min  # the cap binds: thinner, not thicker
+        if t_here != ms.t or not lopsided or need <= max_turn or radius <= 0:
+            break
+        t_here, slack = 0.5 * (ms.f_min + ms.f_max) * ms.t, half_span
+    return s, origin, target, max_turn, t_here
+
+
+def _max_turn(slack: float, radius: float) -> float:
+    """Degrees a plane may turn so that ``slack`` mm of thickness spans ``radius``."""
+    return float(np.degrees(np.arctan2(slack, radius))) if radius > 0 else 0.0
+
+
 def _choose(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray,
             below: tuple[np.ndarray, np.ndarray], target: np.ndarray, max_turn: float,
-            ms: MarchSettings, accept: Accept | None, subpart: int, index: int
-            ) -> LayerPlane | None:
+            ms: MarchSettings, accept: Accept | None, subpart: int, index: int,
+            t_here: float | None = None) -> LayerPlane | None:
     """The most-turned acceptable plane at ``origin`` (None once the part has ended)."""
     turn = max_turn if index else 0.0
     reason = None
     for k in range(MAX_HALVINGS + 2):
         n, ang = turn_toward(below[1], target, turn)
         f = transport_frame(frame, n)
-        region, (lo, hi) = _try_plane(solid, origin, f, below, ms)
+        region, (lo, hi) = _try_plane(solid, origin, f, below, ms, t_here)
         if region.is_empty:
             return None
         ok_thick = ms.f_min * ms.t - 1e-9 <= lo and hi <= ms.f_max * ms.t + 1e-9
