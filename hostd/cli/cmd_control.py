@@ -114,7 +114,8 @@ def cmd_print(args: argparse.Namespace) -> int:
             raise CliError(f"{path}: {exc.strerror or exc}", EXIT_USAGE) from None
         if args.wait:
             c.call("events.subscribe", events=["job.state", "job.progress", "job.subpart",
-                                               "subpart_started", "transition_failed"])
+                                               "subpart_started", "transition_failed",
+                                               "queue.state"])
         job = _submit(c, path.name, data, None if args.json else _upload_progress(path.name),
                       kind=args.kind)
         if not args.wait:
@@ -188,6 +189,10 @@ def _follow(c: Client, job: dict[str, Any], as_json: bool) -> str:
     if state in FINAL:
         return str(state)
     for event, data in c.events():
+        if event == "queue.state":  # the job waits for the platform (or may go now)
+            if data.get("held") and bar.state in ("queued", "slicing", "ready") and not as_json:
+                bar.line_break(f"queue held: {data.get('reason')}")
+            continue
         if data.get("job_id") != job_id:
             continue
         if as_json:
@@ -291,8 +296,8 @@ def cmd_status(args: argparse.Namespace) -> int:
     if cur:
         eta = cur.get("remaining_s")
         print(f"job {cur['id']} {cur['state']}: {cur['info']['name']}  "
-              f"{cur['progress'] * 100:.1f}%  sub-part {cur['subpart']}  layer {cur['layer']}"
-              f"  ETA {'--' if eta is None else _hms(eta)}")
+              f"{cur['progress'] * 100:.1f}%  sub-part {_or_dash(cur['subpart'])}  layer "
+              f"{_or_dash(cur['layer'])}  ETA {'--' if eta is None else _hms(eta)}")
         if cur.get("pause_reason"):
             print(f"  paused: {cur['pause_reason']}")
     else:
@@ -303,8 +308,10 @@ def cmd_status(args: argparse.Namespace) -> int:
     if queue.get("held"):
         print(f"  held: {queue.get('reason')}")
     if jobs.get("waiting_for_printer"):
-        print(f"  held: the printer is not ready (link {link.get('state', '?')}); after an "
-              "estop or a halt: hostctl firmware-restart")
+        print(f"  held: the printer is not ready (link {link.get('state', '?')})")
+    if link.get("state") == "halted":
+        print("the board is halted (estop, a firmware kill or a link too noisy): "
+              "hostctl firmware-restart brings it back")
     return EXIT_OK
 
 
@@ -313,7 +320,7 @@ def _print_last(last: dict[str, Any] | None) -> None:
     if not last or last.get("state") not in ("interrupted", "failed"):
         return
     print(f"last job {last['id']} {last['state']} at line {last['acked']}/{last['total']}"
-          f" (sub-part {last['subpart']}, layer {last['layer']})")
+          f" (sub-part {_or_dash(last['subpart'])}, layer {_or_dash(last['layer'])})")
     if last["state"] == "interrupted":
         print(f"  resume: hostctl resume {last['id']} [--from layer|subpart|checkpoint]")
 

@@ -14,7 +14,7 @@ from typing import Any
 import yaml
 
 from hostd.config.fields import FieldError
-from hostd.config.placeholders import SCRIPT_KEYS, script_problem
+from hostd.config.placeholders import SCRIPT_KEYS, filled, script_problem
 from hostd.config.schema import SCHEMA
 from slicer.settings import MAX_BEAD_SHARE
 
@@ -166,6 +166,20 @@ def _cross_checks(config: Config, name: str, root: yaml.MappingNode) -> None:
                           else f"{name}: {dotted}: {reason}")
 
 
+def _script_gcode(c: Config, key: str) -> str | None:
+    """What the firmware or hostd would refuse in a start/end script, filled (one line)."""
+    from hostd.printer.envelope import envelope_from_config
+    from hostd.printer.errors import ProgramError
+    from hostd.printer.program import parse_program
+
+    try:
+        program = parse_program(filled(c, c[key]))
+        envelope_from_config(c.values).check_temperatures(program)
+    except ProgramError as exc:
+        return f"script {exc}"
+    return None
+
+
 def _problems(c: Config) -> Iterator[tuple[str, str]]:
     if c["serial.reconnect_min"] > c["serial.reconnect_max"]:
         yield "serial.reconnect_min", (f"{c['serial.reconnect_min']:g} is above "
@@ -181,13 +195,13 @@ def _problems(c: Config) -> Iterator[tuple[str, str]]:
     if c["sim.silence_at_line"] and not c["sim.silence_lines"]:
         yield "sim.silence_at_line", ("silences nothing with sim.silence_lines 0 (the lines to "
                                       "swallow without answer)")
-    for key in SCRIPT_KEYS:
-        if (problem := script_problem(c[key])) is not None:
-            yield key, problem
     for process, machine in (("process.nozzle_temperature", "machine.max_hotend_temp"),
                              ("process.bed_temperature", "machine.max_bed_temp")):
         if c[process] > c[machine]:
             yield process, f"{c[process]:g} is above {machine} ({c[machine]:g})"
+    for key in SCRIPT_KEYS:
+        if (problem := script_problem(c[key]) or _script_gcode(c, key)) is not None:
+            yield key, problem
     bound = c["machine.nozzle_diameter"] * MAX_BEAD_SHARE
     if c["process.line_width"] < bound:
         yield "process.line_width", (f"{c['process.line_width']:g} is narrower than 0.8 × "

@@ -50,8 +50,12 @@ def script_problem(template: str) -> str | None:
     for _, field, _, _ in parsed:
         if field is None:
             continue
-        name = field.split(".", 1)[0].split("[", 1)[0]
-        if name not in known:
-            return (f"unknown placeholder {{{field}}} (known: "
+        if field not in known:
+            return (f"unknown placeholder {{{field}}} (a bare name of: "
                     f"{', '.join(sorted(known))})")
     return None
+
+
+def filled(cfg: Config, template: str) -> str:
+    """``template`` with its placeholders filled as a print would (``{safe_z}`` 0)."""
+    return template.format_map({**process_values(cfg), "safe_z": 0.0})

@@ -127,12 +127,30 @@ class JobManager:
                 self.finished["interrupted"] += 1
             log.warning("job %d %s: %s", job.id, job.state, job.reason)
         self.counts = self.store.counts()
+        self._last = self._last_printed()
         self._tasks = [asyncio.create_task(self._print_loop(), name="print-loop"),
                        asyncio.create_task(self._slice_loop(), name="slice-loop")]
         for task in self._tasks:
             task.add_done_callback(_log_death)
         self._wake_print.set()
         self._wake_slice.set()
+
+    def _last_printed(self) -> dict[str, Any] | None:
+        """After a restart, the figures of the job that printed last (from the database):
+        ``status()`` names it (an interrupted job to resume) as it would have before."""
+        ended = [j for j in self.store.list(STOPPED, limit=20, newest=True)
+                 if j.started_at is not None]
+        if not ended:
+            return None
+        job = max(ended, key=lambda j: j.updated_at)
+        total = job.total_lines
+        return {"info": {"id": str(job.id), "name": job.name}, "id": job.id,
+                "state": job.state.value, "progress": job.acked_lines / total if total else 0.0,
+                "acked": job.acked_lines, "total": total, "subpart": job.subpart,
+                "subparts_total": None, "layer": job.layer, "layers_total": None,
+                "elapsed_s": job.print_seconds, "remaining_s": None,
+                "filament_mm": job.filament_mm, "a": None, "c": None, "axes": {},
+                "pause_reason": None}
 
     def alive(self) -> bool:
         """Whether the print and slice loops are running (for the watchdog)."""
@@ -258,6 +276,9 @@ class JobManager:
     async def delete(self, job_id: int) -> Job:
         job = self.store.delete(job_id)
         self.counts[job.state.value] -= 1
+        if self.hold_reason is not None and self.hold_reason.startswith(f"job {job_id} "):
+            self._set_hold(f"job {job_id} was deleted (its part may still be on the platform):"
+                           " clear the platform, then hostctl queue start")
         self._release_waiters(job_id)
         for sha, kind in ((job.upload_sha, job.kind), (job.gcode_sha, "gcode")):
             if sha and self.store.references(sha) == 0:

@@ -181,7 +181,8 @@ def check_stl(data: bytes, name: str) -> None:
             raise SpoolError(f"{name}: ASCII STL is truncated (no endsolid)")
         if bad := _NONFINITE_ASCII.search(data):
             line = data.count(b"\n", 0, bad.start()) + 1
-            raise SpoolError(f"{name}: line {line}: vertex with a NaN or infinite coordinate")
+            raise SpoolError(f"{name}: line {line}: vertex with a NaN, infinite or absurdly "
+                             "large coordinate")
         return
     if len(data) < 84:
         raise SpoolError(f"{name}: not an STL file ({len(data)} bytes)")
@@ -194,7 +195,8 @@ def check_stl(data: bytes, name: str) -> None:
     _check_finite(data, count, name)
 
 
-_NONFINITE_ASCII = re.compile(rb"vertex[ \t]+[^\n]*?(nan|inf)", re.IGNORECASE)
+_NONFINITE_ASCII = re.compile(  # nan, inf, or an exponent of 100 or more (1e999 reads as inf)
+    rb"vertex[ \t]+[^\n]*?(nan|inf|e\+?0*[1-9][0-9]{2,})", re.IGNORECASE)
 _TRIANGLE = [("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("attributes", "<u2")]
 
 

@@ -92,6 +92,9 @@ class Envelope:
         limit = self.heaters.get(heater) if self.heaters else None
         for key in ("S", "R"):
             value = args.get(key)
+            if value is not None and value < 0:
+                raise ProgramError(f"line {program.source_lines[index]}: {code} {key}{value:g}: "
+                                   "a negative temperature")
             if limit is not None and value is not None and value > limit:
                 raise ProgramError(
                     f"line {program.source_lines[index]}: {code} {key}{value:g} is above the "

@@ -14,7 +14,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Any
 
-from hostd.link.framing import COMMAND_MAX, CONTROL, MAX_CMD_SIZE, strip_gcode
+from hostd.link.framing import COMMAND_MAX, CONTROL, MAX_CMD_SIZE, checksum, strip_gcode
 from hostd.printer.errors import ProgramError
 from hostd.printer.modal import ModalState
 
@@ -28,6 +28,11 @@ _MARKS = (b"\0", b"#e", b"nan", b"inf")
 _COMMAND = re.compile(r"[GMT][0-9]")  # what a command starts with (strip_gcode upper-cases)
 _ODD_LINE = re.compile(r"\n(?![GMTgmt][0-9]|[;\n]|$)")  # a line starting as no command
 _ODD_FIRST = re.compile(r"(?![GMTgmt][0-9]|[;\n]|$)")  # does (or with a blank): the first
+RESERVED = {"M110": "line numbers are hostd's to set", "M112": "use hostctl estop",
+            "M999": "use hostctl firmware-restart"}
+"""Commands a file or raw G-code may not send: the link numbers lines itself, and a stop or
+a restart of the firmware goes through hostd (the job's state follows)."""
+_RESERVED_LINE = re.compile(r"(?:^|\n)[Mm]0*(?:110|112|999)(?![0-9])")
 
 
 @dataclass(frozen=True)
@@ -137,6 +142,7 @@ def parse_program(text: str) -> Program:
             continue
         if check:
             check_command(cmd, lineno)
+            _check_own_checksum(raw, lineno)
         prog.commands.append(cmd)
         prog.source_lines.append(lineno)
     if open_tr is not None:
@@ -220,7 +226,8 @@ def _needs_line_checks(text: str) -> bool:
     a header's ``1.3e-16`` spares the rest of the file. Text beyond ASCII is looked at whole
     (``float`` reads other scripts' digits, and ``splitlines`` breaks lines at more than
     ``\\n``)."""
-    if not text.isascii() or _ODD_FIRST.match(text) or _ODD_LINE.search(text):
+    if (not text.isascii() or _ODD_FIRST.match(text) or _ODD_LINE.search(text)
+            or _RESERVED_LINE.search(text)):
         return True  # a line starting as no command does (a comment in parentheses, an N
     data = text.encode("ascii")  # prefix, a stray word): rare in any real file
     screened = data.translate(_SCREEN).lower()
@@ -251,6 +258,27 @@ def _passes_alone(line: str) -> bool:
     return True
 
 
+def _check_own_checksum(raw: str, lineno: int) -> None:
+    """A line written framed (``N12 G1 X1*34``, a file from another host) must carry its own
+    checksum right: a wrong one means the file was damaged (hostd frames lines afresh)."""
+    body, star, rest = raw.split(";", 1)[0].strip().partition("*")
+    if not star or body[:1] not in ("N", "n"):
+        return
+    try:
+        given = int(rest.strip())
+    except ValueError:
+        raise ProgramError(f"line {lineno}: checksum {rest.strip()!r} is not a number") from None
+    if given != checksum(body):
+        raise ProgramError(f"line {lineno}: checksum {given} does not match the line "
+                           f"({checksum(body)}): the file is damaged")
+
+
+def _code(word: str) -> str:
+    """``M0110`` → ``M110``: a code as the firmware reads it."""
+    letter, number = word[:1].upper(), word[1:]
+    return letter + (number.lstrip("0") or "0") if number.isdigit() else word.upper()
+
+
 def check_command(cmd: str, lineno: int) -> None:
     """Refuse a command a firmware would misread: a control character, a first word that is
     no G/M/T code (``hello``, ``X10``, ``%``), or an argument such as ``X1e400`` or ``Xnan``
@@ -261,6 +289,9 @@ def check_command(cmd: str, lineno: int) -> None:
         raise ProgramError(f"line {lineno}: {cmd.split()[0][:20]!r} is not a G-code "
                            "command (a G, M or T code and its number)")
     words = cmd.split()
+    if (why := RESERVED.get(_code(words[0]))) is not None:
+        raise ProgramError(f"line {lineno}: {words[0]} is not allowed in a job or raw G-code "
+                           f"({why})")
     if words[0].upper() in MESSAGES:
         return
     for word in words[1:]:

@@ -138,6 +138,14 @@ async def test_print_wait_tells_how_to_resume_when_hostd_stops_mid_print(tmp_pat
     lines = out.splitlines()
     assert lines[-2].startswith("job 1 interrupted: daemon stopped (SIGTERM) at line ")
     assert lines[-1] == "resume it with: hostctl resume 1 [--from layer|subpart|checkpoint]"
+    async with asyncio.timeout(60):  # after a restart, status still names the job
+        await d.start()
+        try:
+            rc, out, _ = await hostctl(d.socket, "status")
+        finally:
+            await d.stop()
+    assert rc == 0 and "no job printing\nlast job 1 interrupted at line " in out
+    assert "resume: hostctl resume 1 [--from layer|subpart|checkpoint]" in out
 
 
 @pytest.mark.asyncio
@@ -228,3 +236,29 @@ async def test_hostctl_queue_shows_and_lifts_the_hold(tmp_path):
             assert rc == 2 and err.strip() == f"hostctl: {tmp_path}: not a regular file"
         finally:
             await d.stop()
+
+
+@pytest.mark.asyncio
+async def test_print_wait_says_when_the_hold_starts_after_the_job_was_queued(tmp_path):
+    d = DaemonProc(tmp_path, daemon__next_job="after_clear", sim__throttle=True)
+    first, second = tmp_path / "first.gcode", tmp_path / "second.gcode"
+    first.write_text(make_gcode(subparts=1, layers=10, per_layer=100))
+    second.write_text(make_gcode(subparts=1, layers=2, per_layer=20))
+    async with asyncio.timeout(90):
+        await d.start()
+        try:
+            watcher = await d.rpc()
+            await watcher.call("events.subscribe", events=["job.progress", "queue.state"])
+            rc, _, _ = await hostctl(d.socket, "print", str(first))
+            await watcher.until(lambda e: e["event"] == "job.progress" and e["acked"] > 10)
+            waiting = asyncio.create_task(hostctl(d.socket, "print", str(second), "--wait"))
+            await watcher.until(lambda e: e["event"] == "queue.state" and e["held"])
+            await watcher.call("queue.start")
+            rc, out, err = await waiting
+            await watcher.close()
+        finally:
+            await d.stop()
+    assert rc == 0, err
+    lines = out.splitlines()
+    held = [i for i, line in enumerate(lines) if line.startswith("queue held: job 1 completed")]
+    assert held and lines[-1].startswith("job 2 completed")

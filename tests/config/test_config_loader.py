@@ -88,10 +88,20 @@ def _error(text: str) -> str:
          "machine.nozzle_diameter (0.48)"),
         ("process:\n  start_gcode: \"G28\\nM104 S{nozzle_temp}\\n\"\n",
          "config/hostd.yaml:2: process.start_gcode: unknown placeholder {nozzle_temp} "
-         "(known: "),
+         "(a bare name of: "),
         ("process:\n  end_gcode: \"G0 Z{safe_z F3000\"\n",
          "config/hostd.yaml:2: process.end_gcode: expected '}' before end of string (write "
          "{{ and }} for literal braces)"),
+        ("process:\n  start_gcode: \"G28\\nM104 S300\\n\"\n",
+         "config/hostd.yaml:2: process.start_gcode: script line 2: M104 S300 is above the "
+         "hotend's limit 285 °C (machine.max_hotend_temp)"),
+        ("process:\n  end_gcode: \"M112\"\n",
+         "config/hostd.yaml:2: process.end_gcode: script line 1: M112 is not allowed"),
+        ("process:\n  start_gcode: \"hello\"\n",
+         "config/hostd.yaml:2: process.start_gcode: script line 1: 'HELLO' is not a G-code"),
+        ("process:\n  start_gcode: \"M104 S{nozzle_temperature[0]}\"\n",
+         "config/hostd.yaml:2: process.start_gcode: unknown placeholder "
+         "{nozzle_temperature[0]} (a bare name of: "),
         ("sim:\n  silence_at_line: 40\n",
          "config/hostd.yaml:2: sim.silence_at_line: silences nothing with sim.silence_lines 0"),
         ("machine:\n  max_hotend_temp: 200\n",

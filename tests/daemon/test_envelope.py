@@ -100,6 +100,7 @@ def test_a_file_sliced_for_another_machine_is_refused_naming_the_key(key, value,
     ("G28\nM140 S60\nG1 X1\nM190 R121\n", "line 4: M190 R121 is above the bed's limit 120 °C "
                                           "(machine.max_bed_temp)"),
     ("; start\nM109 S286 ; too hot\n", "line 2: M109 S286 is above the hotend's limit"),
+    ("G28\nM104 S-10\n", "line 2: M104 S-10: a negative temperature"),
 ])
 def test_a_heater_target_above_the_printers_limit_is_refused(text: str, message: str):
     with pytest.raises(ProgramError) as err:

@@ -18,12 +18,20 @@ from hostd.printer.program import check_command, parse_program
     ("G1 X10 E-inf\n", "line 1: E-inf is not a finite number"),
     ("G1 X1\x1a\n", "line 1: control character '\\x1a'"),
     ("M117 a\x07\n", "line 1: control character '\\x07'"),
+    ("G28\nM110 N0\nG1 X100\n", "line 2: M110 is not allowed in a job or raw G-code "
+                                 "(line numbers are hostd's to set)"),
+    ("G28\nm0112\n", "line 2: M0112 is not allowed"),
+    ("  M999\n", "line 1: M999 is not allowed in a job or raw G-code (use hostctl "
+                "firmware-restart)"),
+    ("N0 M110 N0*125\nN1 G28*18\n", "line 1: M110 is not allowed"),
+    ("N1 G28*99\nN2 G1 X1*99\n", "line 1: checksum 99 does not match the line (18): the file "
+                                 "is damaged"),
     ("G28\nhello world\n", "line 2: 'HELLO' is not a G-code command"),
     ("G28\n  X10 Y10\n", "line 2: 'X10' is not a G-code command"),
     ("G28\n%\n", "line 2: '%' is not a G-code command"),
     ("G28\nG X1\n", "line 2: 'G' is not a G-code command"),
     ("(setup) M104 S200\n(note) hello\n", "line 2: 'HELLO' is not a G-code command"),
-    ("N10 G28*18\nN11 nope*1\n", "line 2: 'NOPE' is not a G-code command"),
+    ("N10 G28*34\nN11 nope*122\n", "line 2: 'NOPE' is not a G-code command"),
     (';HOSTD_LAYER {"subpart": "a", "index": 0}\nG1 X1\n',
      "line 1: marker needs an integer 'subpart'"),
     (';HOSTD_LAYER {"subpart": [1], "index": 0}\nG1 X1\n',
@@ -43,7 +51,8 @@ def test_refused_with_the_line_named(text: str, message: str):
     "G1 X1e3 Y2.5e-2 E0.04 F1800\n",  # exponents a firmware reads
     "M117 infill nan inf\n",  # a message is text
     "M23 inf.gco\n",  # so is a file name
-    "(setup) M104 S200\nN10 G28*18\ng1 x1\nT0\n",  # a comment, a number, lowercase, T
+    "(setup) M104 S200\nN1 G28*18\ng1 x1\nT0\n",  # a comment, a number, lowercase, T
+    "M1100 S1\nM11\n",  # codes that only start like a reserved one
     "G1 X10\tY5\n",  # a tab separates words
 ])
 def test_unusual_but_valid_lines_pass(text: str):

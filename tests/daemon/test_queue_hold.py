@@ -45,6 +45,9 @@ async def test_the_next_job_waits_until_the_platform_is_cleared(daemon_factory):
                if cmd not in ("M400", "M114")]
         assert ran == file_commands(a) + file_commands(b)
         assert (await c.call("queue.status"))["held"] is True  # b is on the platform now
+        await c.call("job.delete", id=jb["id"])  # the reason no longer offers a job
+        reason = (await c.call("queue.status"))["reason"]
+        assert reason.startswith(f"job {jb['id']} was deleted") and "queue start" in reason
         await c.close()
     assert await d.stop() == 0
 

@@ -86,6 +86,8 @@ async def test_the_worker_summarizes_as_a_parse_here_would(tmp_path: Path,
      b"vertex 0 1 0\nendloop\nendfacet\nendsolid x\n", "line 5: vertex with a NaN"),
     ("stl", b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
      b"vertex 0 1 -inf\nendloop\nendfacet\nendsolid x\n", "line 6: vertex with a NaN"),
+    ("stl", b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1e999 0 0\n"
+     b"vertex 0 1 0\nendloop\nendfacet\nendsolid x\n", "line 5: vertex with a NaN, infinite"),
 ])
 async def test_a_bad_file_is_refused_naming_it(tmp_path: Path, kind: str, data: bytes,
                                                message: str):
