@@ -33,6 +33,7 @@ RESERVED = {"M110": "line numbers are hostd's to set", "M112": "use hostctl esto
 """Commands a file or raw G-code may not send: the link numbers lines itself, and a stop or
 a restart of the firmware goes through hostd (the job's state follows)."""
 _RESERVED_LINE = re.compile(r"(?:^|\n)[Mm]0*(?:110|112|999)(?![0-9])")
+_CODE = re.compile(r"([A-Za-z])0*([0-9]+)")
 
 
 @dataclass(frozen=True)
@@ -274,9 +275,10 @@ def _check_own_checksum(raw: str, lineno: int) -> None:
 
 
 def _code(word: str) -> str:
-    """``M0110`` → ``M110``: a code as the firmware reads it."""
-    letter, number = word[:1].upper(), word[1:]
-    return letter + (number.lstrip("0") or "0") if number.isdigit() else word.upper()
+    """``M0110`` or ``M110N0`` → ``M110``: the code as the firmware reads it (its letter and
+    the number that follows, whatever comes after)."""
+    found = _CODE.match(word)
+    return f"{found[1].upper()}{int(found[2])}" if found else word.upper()
 
 
 def check_command(cmd: str, lineno: int) -> None:

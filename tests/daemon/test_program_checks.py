@@ -21,6 +21,7 @@ from hostd.printer.program import check_command, parse_program
     ("G28\nM110 N0\nG1 X100\n", "line 2: M110 is not allowed in a job or raw G-code "
                                  "(line numbers are hostd's to set)"),
     ("G28\nm0112\n", "line 2: M0112 is not allowed"),
+    ("G28\nM110N0\n", "line 2: M110N0 is not allowed"),
     ("  M999\n", "line 1: M999 is not allowed in a job or raw G-code (use hostctl "
                 "firmware-restart)"),
     ("N0 M110 N0*125\nN1 G28*18\n", "line 1: M110 is not allowed"),
