@@ -128,6 +128,7 @@ class SlicingWorker:
         self.cache = SliceCache(self.cache_dir)
         self.values = dict(values)
         self.profile = profile_of(self.values)
+        self.code = code_digest()  # read once at start: never from disk on the event loop
         self.process = WorkerProcess()
         self.durations = Buckets(SLICE_BOUNDS)
         self.last_duration_s: float | None = None
@@ -141,7 +142,7 @@ class SlicingWorker:
                     ) -> SliceOutcome:
         """The G-code of the STL at ``stl_path`` (its sha256 ``stl_sha``), from the cache or
         sliced in the worker; :class:`SliceError` naming the upload ``name``."""
-        key = cache_key(stl_sha, self.profile)
+        key = cache_key(stl_sha, self.profile, self.code)
         out = self.cache.gcode_path(key)
         info = await asyncio.to_thread(self.cache.lookup, key)
         if info is not None:

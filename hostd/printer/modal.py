@@ -26,7 +26,7 @@ def words(command: str) -> tuple[str, dict[str, float]]:
     parts = command.split()
     if not parts:
         return "", {}
-    code = _code(parts[0])
+    code = normal_code(parts[0])
     args: dict[str, float] = {}
     for w in parts[1:]:
         if len(w) >= 2 and w[0].isalpha():
@@ -40,7 +40,7 @@ def words(command: str) -> tuple[str, dict[str, float]]:
 
 
 @functools.lru_cache(maxsize=1024)
-def _code(word: str) -> str:
+def normal_code(word: str) -> str:
     """Normalise ``G01``/``g1`` to ``G1`` (cached: a file uses a handful of codes)."""
     w = word.upper()
     if len(w) > 1 and w[0] in "GMT" and w[1:].replace(".", "", 1).isdigit():

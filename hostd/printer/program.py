@@ -16,7 +16,7 @@ from typing import Any
 
 from hostd.link.framing import COMMAND_MAX, CONTROL, MAX_CMD_SIZE, checksum, strip_gcode
 from hostd.printer.errors import ProgramError
-from hostd.printer.modal import ModalState
+from hostd.printer.modal import ModalState, normal_code
 
 MARK = ";HOSTD_"
 MESSAGES = frozenset({"M117", "M118", "M23", "M28", "M30", "M32", "M928"})
@@ -33,7 +33,7 @@ RESERVED = {"M110": "line numbers are hostd's to set", "M112": "use hostctl esto
 """Commands a file or raw G-code may not send: the link numbers lines itself, and a stop or
 a restart of the firmware goes through hostd (the job's state follows)."""
 _RESERVED_LINE = re.compile(r"(?:^|\n)[Mm]0*(?:110|112|999)(?![0-9])")
-_CODE = re.compile(r"([A-Za-z])0*([0-9]+)")
+_CODE = re.compile(r"[A-Za-z][0-9]+")
 
 
 @dataclass(frozen=True)
@@ -274,11 +274,11 @@ def _check_own_checksum(raw: str, lineno: int) -> None:
                            f"({checksum(body)}): the file is damaged")
 
 
-def _code(word: str) -> str:
-    """``M0110`` or ``M110N0`` → ``M110``: the code as the firmware reads it (its letter and
-    the number that follows, whatever comes after)."""
+def _leading_code(word: str) -> str:
+    """``M0110`` or ``M110N0`` → ``M110``: the code as the firmware reads it, its letter and
+    the number that follows whatever comes after (normalised as the modal tracker does)."""
     found = _CODE.match(word)
-    return f"{found[1].upper()}{int(found[2])}" if found else word.upper()
+    return normal_code(found[0]) if found else word.upper()
 
 
 def check_command(cmd: str, lineno: int) -> None:
@@ -291,7 +291,7 @@ def check_command(cmd: str, lineno: int) -> None:
         raise ProgramError(f"line {lineno}: {cmd.split()[0][:20]!r} is not a G-code "
                            "command (a G, M or T code and its number)")
     words = cmd.split()
-    if (why := RESERVED.get(_code(words[0]))) is not None:
+    if (why := RESERVED.get(_leading_code(words[0]))) is not None:
         raise ProgramError(f"line {lineno}: {words[0]} is not allowed in a job or raw G-code "
                            f"({why})")
     if words[0].upper() in MESSAGES:
