@@ -42,6 +42,14 @@ class Observed:
         elif isinstance(reply, Capability):
             self.capabilities[reply.name] = reply.enabled
 
+    def forget_machine(self) -> None:
+        """Drop what a reset makes stale (temperatures, position, queue fields); the
+        firmware's name and capabilities stay until it reports them again."""
+        self.temperatures = None
+        self.position = None
+        self.planner_free = None
+        self.buffer_free = None
+
     def _ok(self, ok: Ok) -> None:
         if ok.temperatures is not None:
             self.temperatures = ok.temperatures

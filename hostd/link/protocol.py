@@ -332,6 +332,7 @@ class Protocol:
 
     def _restart(self, now: float) -> None:
         self._clear(now)
+        self.observed.forget_machine()  # a board that (re)starts has its heaters off
         self.state = "handshake"
         self._attempts = 1
         self._send_handshake(now)

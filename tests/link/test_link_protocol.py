@@ -264,6 +264,24 @@ def test_start_banner_mid_print_interrupts_at_the_last_ack_and_handshakes_again(
     assert writes(actions) == ["N0 M110 N0*125"] and p.state == "handshake"
 
 
+@pytest.mark.parametrize("restart", ["banner", "start"])
+def test_a_restarted_board_forgets_its_temperatures_and_position(restart: str) -> None:
+    p = ready()
+    p.receive("ok T:210.00 /210.00 B:60.00 /60.00 @:40 B@:0", 0.1)
+    p.receive("X:1.00 Y:2.00 Z:3.00 E:0.00 Count X:0 Y:0 Z:0", 0.2)
+    before = p.snapshot()
+    assert before["temperatures"]["T"]["target"] == 210.0 and before["position"]
+    if restart == "banner":
+        p.receive("start", 0.3)
+    else:  # the port reopened (a firmware restart, a reconnect)
+        p.start(0.3)
+    after = p.snapshot()
+    assert after["temperatures"] == {} and after["position"] == {}
+    p.receive("ok", 0.4)  # the handshake
+    p.receive("ok T:25.00 /0.00 B:24.00 /0.00 @:0 B@:0", 0.5)
+    assert p.snapshot()["temperatures"]["T"]["target"] == 0.0
+
+
 @pytest.mark.parametrize("line", ["Error:Printer halted. kill() called!", "!!"])
 def test_halt_fails_the_job(line: str) -> None:
     p = ready()
