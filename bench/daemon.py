@@ -33,7 +33,8 @@ the wire full meanwhile.
 
 Last, ``floor_us_per_wakeup`` is :mod:`wakeup`'s bare asyncio wake-up and write per ``ok``
 (no hostd code) on this machine right after: a shared VM's speed drifts, and this tells a
-slow spell from a slower daemon.
+slow spell from a slower daemon. ``--repeat N`` runs it N times and prints a line a run (its
+end, floor and targeted figures), their median and largest, and how many runs kept each target.
 """
 
 from __future__ import annotations
@@ -337,25 +338,65 @@ def main() -> int:
     ap.add_argument("--upload", type=int, default=0, metavar="LINES",
                     help="another client submits a job of about LINES lines as the first "
                          "phase begins")
+    ap.add_argument("--repeat", type=int, default=1, metavar="N",
+                    help="run N times; prints each run's CPU figures with its floor, then "
+                         "the median and largest of every figure")
     args = ap.parse_args()
-    with tempfile.TemporaryDirectory(prefix="hostd-bench-") as name:
-        res = asyncio.run(bench(Path(name), args.in_process, args.profile, args.partial_lines,
-                                 args.read_hold, args.rx_buffer, args.advanced_ok,
-                                 args.upload))
-    res["floor_us_per_wakeup"] = 1e6 * wakeup.measure(3000, 0.00168, write=True)[0]
+    runs = [one_run(args) for _ in range(max(1, args.repeat))]
     mode = "in-process sim:// (CPU includes the emulator)" if args.in_process else \
         "emulator in its own process on a pty"
     print(f"hostd daemon bench, {BAUD} baud, {mode}, "
           f"partial lines {'on' if args.partial_lines else 'off'}, "
           f"read hold {args.read_hold:g}, receive buffer {args.rx_buffer} bytes, "
           f"{'ADVANCED_OK' if args.advanced_ok else 'plain'} oks")
+    if len(runs) == 1:
+        print_figures(runs[0])
+        return 0 if within_targets(runs[0]) else 1
+    print_runs(runs)
+    return 0 if all(within_targets(r) for r in runs) else 1
+
+
+def one_run(args: argparse.Namespace) -> dict[str, float]:
+    """One whole bench run, the floor measured right after it."""
+    with tempfile.TemporaryDirectory(prefix="hostd-bench-") as name:
+        res = asyncio.run(bench(Path(name), args.in_process, args.profile, args.partial_lines,
+                                args.read_hold, args.rx_buffer, args.advanced_ok,
+                                args.upload))
+    res["floor_us_per_wakeup"] = 1e6 * wakeup.measure(3000, 0.00168, write=True)[0]
+    res["ended"] = time.time()
+    return res
+
+
+def within_targets(res: dict[str, float]) -> bool:
+    return all(res[k] < v for k, v in TARGETS.items() if k in res)
+
+
+def print_figures(res: dict[str, float]) -> None:
     for key, value in res.items():
+        if key == "ended":
+            continue
         target = TARGETS.get(key)
         mark = "" if target is None else (" ok" if value < target else " OVER TARGET")
         print(f"{key:28} {value:10.2f}{'' if target is None else f'  (target < {target:g})'}"
               f"{mark}")
-    return 0 if all(res[k] < v for k, v in TARGETS.items() if k in res) else 1
 
+
+RUN_COLUMNS = ("floor_us_per_wakeup", "watch_cpu_pct", "stream_cpu_pct", "status_p99_ms",
+               "idle_rss_mb", "link_timeouts")
+
+
+def print_runs(runs: list[dict[str, float]]) -> None:
+    """A line a run (its end time, floor and the targets' figures), then median and max."""
+    print("run  ended     " + " ".join(f"{c:>19}" for c in RUN_COLUMNS))
+    for i, r in enumerate(runs, 1):
+        ended = time.strftime("%H:%M:%S", time.localtime(r["ended"]))
+        print(f"{i:<4} {ended}  " + " ".join(f"{r[c]:19.2f}" for c in RUN_COLUMNS))
+    for name, fn in (("median", statistics.median), ("max", max)):
+        print(f"{name:<15}" + " ".join(f"{fn([r[c] for r in runs]):19.2f}"
+                                       for c in RUN_COLUMNS))
+    for key, target in TARGETS.items():
+        over = sum(r[key] >= target for r in runs)
+        print(f"{key}: target < {target:g}, {len(runs) - over} of {len(runs)} runs within")
 
 if __name__ == "__main__":
     sys.exit(main())
