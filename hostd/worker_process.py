@@ -61,24 +61,40 @@ class WorkerProcess:
         exceptions are raised here, :class:`WorkerDied` if the process ended meanwhile."""
         if self._pool is None:
             self._pool = spawn_pool()
+        pool = self._pool
         try:
-            return await asyncio.get_running_loop().run_in_executor(self._pool, fn, *args)
+            return await asyncio.get_running_loop().run_in_executor(pool, fn, *args)
         except BrokenProcessPool:
-            self._pool = None
+            if self._pool is pool:
+                self._pool = None
             raise WorkerDied("the worker process died (out of memory?)") from None
+        except asyncio.CancelledError:
+            task = asyncio.current_task()
+            if task is not None and task.cancelling():
+                raise  # this task was cancelled, not the call
+            raise WorkerDied("the worker was closed before the call ran") from None
 
     def kill(self) -> None:
         """End the worker now: a call running in it raises :class:`WorkerDied`, and the next
         call starts a fresh worker."""
-        pool = self._pool
-        if pool is None:
-            return
+        if self._pool is not None:
+            self._kill(self._pool)
+
+    @staticmethod
+    def _kill(pool: ProcessPoolExecutor) -> None:
         procs = getattr(pool, "_processes", None) or {}  # the executor's record of its workers
         for proc in list(procs.values()):
             proc.kill()
 
     def close(self) -> None:
-        """Stop the worker; a call still running is abandoned."""
-        if self._pool is not None:
-            self._pool.shutdown(wait=False, cancel_futures=True)
-            self._pool = None
+        """End the worker now; a call still running is abandoned (its future fails).
+
+        The worker is killed before the pool is shut down and waited for. A pool shut down
+        without waiting would leave its manager thread waiting on the running call, and the
+        interpreter joins that thread at exit: the daemon would outlive its SIGTERM by the
+        rest of a slice."""
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        self._kill(pool)
+        pool.shutdown(wait=True, cancel_futures=True)
