@@ -18,6 +18,7 @@ venv: $(STAMP)
 
 lint: $(STAMP)
 	$(BIN)/ruff check .
+	$(BIN)/mypy
 
 pytest: $(STAMP)
 	$(BIN)/pytest -q
@@ -35,7 +36,7 @@ bench: $(STAMP)
 	for b in bench/*.py; do echo "== $$b"; $(BIN)/python $$b || exit 1; done
 
 clean:
-	rm -rf $(VENV) $(OCTO) build *.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(OCTO) build *.egg-info .pytest_cache .ruff_cache .mypy_cache
 
 # The link against another project's Marlin emulator (OctoPrint's virtual printer), in a venv
 # of its own so OctoPrint's dependencies never meet ours. os._exit: the virtual printer leaves

@@ -44,7 +44,8 @@ def table_rotation(a_deg: ArrayLike, c_deg: ArrayLike) -> np.ndarray:
     return rx(a_deg) @ rz(c_deg)
 
 
-def _broadcast(points: ArrayLike, a_deg: ArrayLike, c_deg: ArrayLike):
+def _broadcast(points: ArrayLike, a_deg: ArrayLike, c_deg: ArrayLike
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     p = np.asarray(points, dtype=float)
     a = np.asarray(a_deg, dtype=float)
     c = np.asarray(c_deg, dtype=float)

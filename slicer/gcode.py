@@ -205,8 +205,8 @@ class _Writer:
                              self.s.safe_height, self.s.z_hop)
         x, y, z = (round(float(v), XYZ_DECIMALS) for v in tr.target[:3])
         a, c = (round(float(v), AC_DECIMALS) for v in tr.target[3:])
-        record = {"from": prev, "to": to, "a": a, "c": c, "x": x, "y": y, "z": z,
-                  "safe_z": round(tr.safe_z, 3)}
+        record: dict[str, object] = {"from": prev, "to": to, "a": a, "c": c, "x": x, "y": y,
+                                     "z": z, "safe_z": round(tr.safe_z, 3)}
         self.transitions.append(record)
         self.prog.line(f";HOSTD_TRANSITION {_json(record)}")
         for pose, rotary in zip(tr.poses, tr.rotary, strict=True):

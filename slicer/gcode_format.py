@@ -36,7 +36,7 @@ def _digits(ints: np.ndarray, count: int) -> np.ndarray:
         Row j holds the j-th digit of every number.
     """
     small = len(ints) == 0 or int(ints.max()) < 2**31  # int32 division by 10 is the fastest
-    rest = ints.astype(np.int32 if small else np.int64)
+    rest: np.ndarray = ints.astype(np.int32 if small else np.int64)
     out = np.empty((count, len(ints)), dtype=np.uint8)
     for j in range(count - 1, -1, -1):
         q = rest // 10
@@ -101,6 +101,7 @@ def format_moves(vals: np.ndarray, mask: np.ndarray, g1: np.ndarray) -> list[str
     words = []  # (rows, letter, number matrix) per written word
     for k, (letter, decimals) in enumerate(zip(LETTERS, DECIMALS, strict=True)):
         used = mask[:, k]
+        rows: np.ndarray | slice  # the rows that write this word: some, or every one
         rows = np.flatnonzero(used)
         if 2 * len(rows) > n:  # most lines write it: format every row, blank the others
             rows = slice(None)

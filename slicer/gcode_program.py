@@ -152,7 +152,8 @@ class WordTable:
     @property
     def kept(self) -> np.ndarray:
         """Rows that become a line (they write at least one word), (n,) bool."""
-        return self.mask.any(axis=1)
+        # numpy types any(axis=...) as scalar-or-array whatever the shape; (n, 7) gives (n,)
+        return self.mask.any(axis=1)  # type: ignore[return-value]
 
     def written(self) -> MoveWords:
         """vals, mask and g1 of the rows that become a line."""

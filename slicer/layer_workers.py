@@ -97,11 +97,14 @@ def chunk_stages(layers: list[LayerPlane], settings: ProcessSettings, grounded: 
     """Stages 1 and 2 of layers ``lo`` to ``hi - 1`` (run in a worker process): their
     timed shells and zones. The shell of layer ``hi`` is computed too, not returned."""
     spec = fill_spec(settings)
-    shells: list[Future[tuple[Shell, float]] | None] = [None] * len(layers)
+    elsewhere: Future[tuple[Shell, float]] = Future()  # the layers this chunk never reads
+    elsewhere.set_exception(LookupError(f"only the shells of layers {lo} to {hi} are computed "
+                                        "in this chunk"))
+    shells = [elsewhere] * len(layers)
     for i in range(lo, min(hi + 1, len(layers))):
         shells[i] = done(timed(shell, layers[i].region, spec))
-    job = LayerJob(layers, shells, settings, grounded, bases)  # type: ignore[arg-type]
-    return ([shells[i].result() for i in range(lo, hi)],  # type: ignore[union-attr]
+    job = LayerJob(layers, shells, settings, grounded, bases)
+    return ([shells[i].result() for i in range(lo, hi)],
             [job.layer(i) for i in range(lo, hi)])
 
 

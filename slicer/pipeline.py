@@ -14,7 +14,7 @@ from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 import trimesh
@@ -32,6 +32,9 @@ from slicer.replay import model_index, replay_check
 from slicer.replay_coverage import shell_depth, shell_grid
 from slicer.replay_geometry import ModelIndex
 from slicer.settings import ProcessSettings
+
+if TYPE_CHECKING:
+    from slicer.decompose import DecomposeSettings
 
 T = TypeVar("T")
 
@@ -98,8 +101,9 @@ def _load(mesh_or_path: trimesh.Trimesh | str | Path, min_size: float,
 
 
 def plan_model(mesh: trimesh.Trimesh, placement: np.ndarray, settings: ProcessSettings,
-               geometry: MachineGeometry, head: Printhead, decompose_settings: object | None,
-               planar: bool, build_volume: np.ndarray | None = None) -> PrintPlan:
+               geometry: MachineGeometry, head: Printhead,
+               decompose_settings: DecomposeSettings | None, planar: bool,
+               build_volume: np.ndarray | None = None) -> PrintPlan:
     """Decompose and plan a placed mesh (or plan it planar, A = C = 0)."""
     from slicer.planner import plan_planar, plan_print
 
@@ -122,7 +126,7 @@ def _thickness(plan: PrintPlan) -> tuple[float, float]:
 
 def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSettings,
                 geometry: MachineGeometry, head: Printhead | None = None,
-                decompose_settings: object | None = None, platform_radius: float = 150.0,
+                decompose_settings: DecomposeSettings | None = None, platform_radius: float = 150.0,
                 planar: bool = False, build_volume: np.ndarray | None = None,
                 check: bool = True, keep_plan: bool = False,
                 travel: ArrayLike = envelope.DEFAULT_TRAVEL) -> SliceResult:

@@ -40,6 +40,7 @@ import shapely
 import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from shapely.geometry.base import BaseGeometry
 
 from kinematics.orient import reachable_mask
 from slicer.printhead import Printhead
@@ -83,7 +84,7 @@ class Check:
     platform_ok: bool
     area: float
     child_faces: np.ndarray = field(repr=False)  # (m,) bool over the piece's faces
-    section: shapely.Geometry | None = field(default=None, repr=False)
+    section: BaseGeometry | None = field(default=None, repr=False)
     tangled: bool = False  # the child's positive side is still joined to parent material
     start_area: float = 0.0  # base area of the search's first valid plane (the 15 % rule)
 
@@ -213,7 +214,7 @@ def _child_faces(ctx: PieceContext, h: np.ndarray) -> tuple[np.ndarray, bool]:
 
 
 def base_section(mesh: trimesh.Trimesh, plane: Plane, faces: np.ndarray
-                 ) -> shapely.Geometry | None:
+                 ) -> BaseGeometry | None:
     """The cross-section of ``faces`` of ``mesh`` with ``plane`` in plane coordinates.
 
     Returns
@@ -234,11 +235,13 @@ def base_section(mesh: trimesh.Trimesh, plane: Plane, faces: np.ndarray
     if len(cells) == 0:
         return None
     rings = shapely.polygons(shapely.get_exterior_ring(cells))
-    return functools.reduce(shapely.symmetric_difference, rings)
+    # types-shapely types polygons() of an array as one polygon or an array (a coordinate
+    # array makes one polygon); an array of rings makes an array of polygons
+    return functools.reduce(shapely.symmetric_difference, rings)  # type: ignore[arg-type]
 
 
 def _collisions(ctx: PieceContext, plane: Plane, child: np.ndarray,
-                section: shapely.Geometry) -> int:
+                section: BaseGeometry) -> int:
     """Obstacle samples inside the head for some tip on ``section``."""
     own = np.zeros(len(ctx.samples), dtype=bool)
     on_face = ctx.sample_face >= 0
@@ -262,7 +265,7 @@ def _collisions(ctx: PieceContext, plane: Plane, child: np.ndarray,
     return int((dist < radius).sum())
 
 
-def _platform_clear(head: Printhead, plane: Plane, section: shapely.Geometry) -> bool:
+def _platform_clear(head: Printhead, plane: Plane, section: BaseGeometry) -> bool:
     """Whether the head stays above z = 0 with its tip anywhere on ``section``."""
     ring = np.concatenate([np.asarray(g.exterior.coords) for g in shapely.get_parts(section)])
     tips = plane.point + ring @ plane_basis(plane.normal)
@@ -403,7 +406,7 @@ def verify_base(child: trimesh.Trimesh, plane: Plane, obstacles: np.ndarray, hea
     return None
 
 
-def _head_hits(pts: np.ndarray, plane: Plane, section: shapely.Geometry,
+def _head_hits(pts: np.ndarray, plane: Plane, section: BaseGeometry,
                head: Printhead) -> int:
     """Points inside the head for some tip on ``section`` (margin: the sample spacing)."""
     h = plane.signed(pts)

@@ -17,6 +17,7 @@ import contextlib
 import time
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import manifold3d as m3
 import numpy as np
@@ -37,6 +38,9 @@ from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 from slicer.skeleton import SkeletonCurve, line_curve, skeleton_curve
 from slicer.subpart_paths import build_layers, pool, workers
+
+if TYPE_CHECKING:
+    from slicer.decompose import Decomposition, Subpart
 
 __all__ = ["SlicingError", "plan_planar", "plan_print"]
 
@@ -245,7 +249,7 @@ def _child_base(index: int, mesh: trimesh.Trimesh, point: np.ndarray, normal: np
     return ChildBase(index, np.asarray(point, dtype=float), frame, sec)
 
 
-def plan_print(decomposition, settings: ProcessSettings, geometry: MachineGeometry,
+def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry: MachineGeometry,
                head: Printhead | None = None) -> PrintPlan:
     """Slice a decomposition into a five-axis print plan.
 
@@ -318,7 +322,7 @@ def _built(job: Future, timer: _Timer) -> list[Layer]:
     return layers
 
 
-def _base_of(sp) -> tuple[np.ndarray, np.ndarray]:
+def _base_of(sp: Subpart) -> tuple[np.ndarray, np.ndarray]:
     """Base plane (point, unit normal) of a sub-part; the platform z = 0 for the root."""
     if sp.base_plane is None:
         lo = sp.mesh.bounds[0]

@@ -13,9 +13,12 @@ import matplotlib.pyplot as plt
 import numpy as np
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-from slicer.planes import plane_basis
+from slicer.planes import Plane, plane_basis
 
 if TYPE_CHECKING:
+    from matplotlib.typing import ColorType
+    from mpl_toolkits.mplot3d import Axes3D
+
     from slicer.decompose import Decomposition
 
 MAX_FACES = 4000  # per sub-part drawn
@@ -57,7 +60,7 @@ def render_preview(dec: Decomposition, path: str | Path, views: tuple[tuple[floa
     return out
 
 
-def _frame(ax: object, centre: np.ndarray, half: float, elev: float, azim: float) -> None:
+def _frame(ax: Axes3D, centre: np.ndarray, half: float, elev: float, azim: float) -> None:
     ax.set_xlim(centre[0] - half, centre[0] + half)
     ax.set_ylim(centre[1] - half, centre[1] + half)
     ax.set_zlim(max(0.0, centre[2] - half), centre[2] + half)
@@ -67,7 +70,7 @@ def _frame(ax: object, centre: np.ndarray, half: float, elev: float, azim: float
     ax.set_zlabel("z")
 
 
-def _draw_regions(ax: object, dec: Decomposition) -> None:
+def _draw_regions(ax: Axes3D, dec: Decomposition) -> None:
     """Coarse regions in colours, each labelled with its number (what ``--root`` takes) at
     the face nearest its area centroid."""
     part = dec.partition
@@ -85,7 +88,7 @@ def _draw_regions(ax: object, dec: Decomposition) -> None:
                 bbox={"facecolor": "white", "alpha": 0.7, "pad": 1, "edgecolor": "none"})
 
 
-def _draw_plane(ax: object, plane: object, size: float, colour: object) -> None:
+def _draw_plane(ax: Axes3D, plane: Plane, size: float, colour: ColorType) -> None:
     u, v = plane_basis(plane.normal)
     corners = np.array([plane.point + size * (a * u + b * v)
                         for a, b in ((-1, -1), (1, -1), (1, 1), (-1, 1))])

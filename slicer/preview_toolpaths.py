@@ -58,7 +58,9 @@ def render_toolpaths(plan: PrintPlan, path: str | Path, dpi: int = 110) -> None:
     side = fig.add_subplot(1, 2, 2)
     from matplotlib.collections import LineCollection
 
-    side.add_collection(LineCollection(segs[:, :, [0, 2]], colors=colors, linewidths=0.3))
+    # matplotlib types segments as a Sequence; its docs (and code) take an (n, 2, 2) array too
+    side.add_collection(LineCollection(segs[:, :, [0, 2]],  # type: ignore[arg-type]
+                                       colors=colors, linewidths=0.3))
     side.autoscale()
     side.set_aspect("equal")
     side.set_xlabel("x mm")

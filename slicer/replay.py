@@ -24,8 +24,10 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any, TypeGuard
 
 import numpy as np
 import trimesh
@@ -33,7 +35,7 @@ import trimesh
 from kinematics.machine import MachineGeometry
 from slicer.gcode_reader import GcodeFormatError, ParsedGcode, read_gcode
 from slicer.layers import SlicingError
-from slicer.printhead import Printhead
+from slicer.printhead import Printhead, Segment
 from slicer.replay_collide import find_collisions
 from slicer.replay_coverage import coverage
 from slicer.replay_geometry import ModelIndex
@@ -132,7 +134,13 @@ def _head(parsed: ParsedGcode, head: Printhead | None) -> Printhead:
     if head is not None:
         return head
     segs = parsed.headers.get("KINEMATICS", {}).get("printhead")
-    return Printhead(tuple(tuple(map(float, s)) for s in segs)) if segs else Printhead()
+    return Printhead(tuple(_segment(s) for s in segs)) if segs else Printhead()
+
+
+def _segment(values: Iterable[Any]) -> Segment:
+    """A header's ``[start, end, r_start, r_end]`` as floats (ValueError for another count)."""
+    start, end, r_start, r_end = map(float, values)
+    return start, end, r_start, r_end
 
 
 def _placed_mesh(mesh: trimesh.Trimesh, placement: np.ndarray
@@ -233,7 +241,7 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         seconds=time.perf_counter() - t0, timings=st.wall, cpu_timings=st.cpu)
 
 
-def _fits(index: ModelIndex | None, line_width: float) -> bool:
+def _fits(index: ModelIndex | None, line_width: float) -> TypeGuard[ModelIndex]:
     """Whether a prebuilt ``index`` serves a replay at ``line_width``."""
     return index is not None and math.isclose(index.inside_pitch, _inside_pitch(line_width))
 

@@ -274,7 +274,8 @@ def find_collisions(parsed: ParsedGcode, near: Samples, far_tips: Samples, depos
     found += [(near, int(t), -1) for t in np.flatnonzero(platform_hits(near, head,
                                                                         platform_radius))]
     found.sort(key=lambda x: (int(x[0].move[x[1]]), x[2]))
-    reports, seen = [], set()
+    reports: list[Collision] = []
+    seen: set[tuple[int, int, bool]] = set()
     for tips, t, o in found:
         m = int(tips.move[t])
         key = (int(tips.subpart[t]), int(tips.layer[t]), o < 0)

@@ -8,7 +8,9 @@ any move, including those that turn the table.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -65,12 +67,23 @@ def geometry_from_header(parsed: ParsedGcode) -> MachineGeometry:
         raise GcodeFormatError(f"unsupported kinematics type {kin.get('type')!r}")
     try:
         c_lim = kin.get("c_limits")
-        return MachineGeometry(tuple(map(float, kin["table_origin"])),
-                               tuple(map(float, kin["a_pivot"])),
-                               tuple(map(float, kin.get("a_limits", (-90.0, 90.0)))),
-                               None if c_lim is None else tuple(map(float, c_lim)))
+        return MachineGeometry(_point(kin["table_origin"]), _point(kin["a_pivot"]),
+                               _limits(kin.get("a_limits", (-90.0, 90.0))),
+                               None if c_lim is None else _limits(c_lim))
     except (KeyError, TypeError, ValueError) as exc:
         raise GcodeFormatError(f";HOSTD_KINEMATICS: bad or missing key {exc}") from None
+
+
+def _point(value: Iterable[Any]) -> tuple[float, float, float]:
+    """Three numbers as floats (ValueError for another count)."""
+    x, y, z = map(float, value)
+    return x, y, z
+
+
+def _limits(value: Iterable[Any]) -> tuple[float, float]:
+    """``[min, max]`` as floats (ValueError for another count)."""
+    lo, hi = map(float, value)
+    return lo, hi
 
 
 def nozzle_axes(a: np.ndarray, c: np.ndarray) -> np.ndarray:

@@ -25,6 +25,7 @@ the (always slightly short) MCF skeleton to the end of the part.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import manifold3d as m3
@@ -92,7 +93,7 @@ class SkeletonCurve:
 
     def tangent(self, s: ArrayLike) -> np.ndarray:
         """Unit tangent τ(s), (n, 3) float (end tangents outside [0, L])."""
-        s = np.clip(np.atleast_1d(np.asarray(s, dtype=float)), 0.0, self.length)
+        s = np.atleast_1d(np.asarray(s, dtype=float)).clip(0.0, self.length)
         if self.line is not None:
             return np.repeat(self.line[1][None, :], len(s), axis=0)
         d = np.column_stack(splev(self.u_of_s(s), self.tck, der=1))
@@ -154,8 +155,8 @@ def solid_proxy(mesh: trimesh.Trimesh, cells: int = PROXY_CELLS
     radius = 0.5 * float(ext.min())
     pad = radius + 2.0 * pitch
     lo = lo - pad
-    shape = tuple(int(n) for n in (np.ceil((hi + pad - lo) / pitch).astype(int) + 1)[::-1])
-    occ = _occupancy(solid, lo, pitch, shape)
+    nz, ny, nx = (int(n) for n in (np.ceil((hi + pad - lo) / pitch).astype(int) + 1)[::-1])
+    occ = _occupancy(solid, lo, pitch, (nz, ny, nx))
     if not occ.any():
         return None
     grown = ndimage.distance_transform_edt(~occ) * pitch <= radius
@@ -194,7 +195,8 @@ def _occupancy(solid: m3.Manifold, lo: np.ndarray, pitch: float,
     return occ
 
 
-def _trilinear(grid: np.ndarray, lo: np.ndarray, pitch: float):
+def _trilinear(grid: np.ndarray, lo: np.ndarray, pitch: float
+               ) -> Callable[[float, float, float], float]:
     """A scalar callable f(x, y, z) interpolating ``grid`` (z, y, x order) trilinearly.
 
     Manifold's ``level_set`` calls it once per lattice point from C++, so it works on nested

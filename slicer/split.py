@@ -77,7 +77,8 @@ def split_solid(solid: m3.Manifold, plane: Plane, labels: trimesh.Trimesh,
     flags[labels.faces[child_faces].ravel()] = True
     up = h > EPS
     tree = cKDTree(labels.vertices[up]) if up.any() else None
-    child, rest = [], [neg]
+    child: list[m3.Manifold] = []
+    rest = [neg]
     for comp in pos.decompose():
         verts = np.asarray(comp.to_mesh64().vert_properties)[:, :3]
         verts = verts[plane.signed(verts) > EPS]

@@ -33,7 +33,7 @@ import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Protocol, TypeVar
+from typing import Protocol, TypeVar, overload
 
 import numpy as np
 import shapely
@@ -128,7 +128,15 @@ class _Shells(Sequence[BaseGeometry]):
     def __len__(self) -> int:
         return len(self.shells)
 
-    def __getitem__(self, i):  # type: ignore[override]  # ints only
+    @overload
+    def __getitem__(self, i: int) -> BaseGeometry: ...
+
+    @overload
+    def __getitem__(self, i: slice) -> list[BaseGeometry]: ...
+
+    def __getitem__(self, i: int | slice) -> BaseGeometry | list[BaseGeometry]:
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
         return getattr(self.shells[i].result()[0], self.attr)
 
 

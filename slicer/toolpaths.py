@@ -368,7 +368,8 @@ def mark_interface(paths: list[Path2D], zone: BaseGeometry, width: float) -> lis
     for p in paths:
         xy = np.vstack([p.xy, p.xy[:1]]) if p.closed else p.xy
         dense = shapely.get_coordinates(shapely.segmentize(shapely.linestrings(xy), 0.5 * width))
-        inside = shapely.contains_xy(near, *(0.5 * (dense[1:] + dense[:-1])).T)
+        mid = 0.5 * (dense[1:] + dense[:-1])
+        inside = shapely.contains_xy(near, mid[:, 0], mid[:, 1])
         if not inside.any():
             out.append(p)
             continue

@@ -27,7 +27,9 @@ class ConfigError(Exception):
 class Config(Mapping[str, Any]):
     """Validated configuration: dotted keys (``machine.a_limits``) to typed values."""
 
-    values: Mapping[str, Any]
+    # The public field shadows Mapping.values(), so config.values() is not callable: read
+    # config.values (the mapping itself) or config.items(). Renaming it would change the API.
+    values: Mapping[str, Any]  # type: ignore[assignment]
     source: str = "<defaults>"
 
     def __getitem__(self, key: str) -> Any:

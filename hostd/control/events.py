@@ -58,7 +58,11 @@ class EventBus:
         key = self._next
         self._next += 1
         self._subs[key] = _Subscription(handler, wanted)
-        return lambda: self._subs.pop(key, None) and None
+
+        def unsubscribe() -> None:
+            self._subs.pop(key, None)
+
+        return unsubscribe
 
     def publish(self, name: str, data: dict[str, Any]) -> None:
         """Deliver one event to every interested handler; a failing handler harms no other."""

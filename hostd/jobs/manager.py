@@ -233,24 +233,26 @@ class JobManager:
         :data:`DEFAULT_SCOPE`); returns the job once it has left that state (printing, or
         failed when it could not be resumed)."""
         job = self.store.get(job_id)
-        paused = job.state is JobState.PAUSED and self.active and self.active.job.id == job_id
-        if paused and scope is not None:
+        act = self.active
+        paused = act if (job.state is JobState.PAUSED and act is not None
+                         and act.job.id == job_id) else None  # this job, paused on the printer
+        if paused is not None and scope is not None:
             raise JobStateError(f"job {job_id} is paused: it goes on from its next line "
                                 "(from is for interrupted jobs)")
-        if not paused and job.state is not JobState.INTERRUPTED:
+        if paused is None and job.state is not JobState.INTERRUPTED:
             raise JobStateError(f"job {job_id} is {job.state}; only paused or interrupted jobs "
                                 "resume")
         scope = scope or DEFAULT_SCOPE
         if scope not in RESUME_SCOPES:
             raise JobStateError(f"resume from {scope!r}: use one of {', '.join(RESUME_SCOPES)}")
-        if not paused and (self.active is not None or self._resume_request is not None):
+        if paused is None and (self.active is not None or self._resume_request is not None):
             raise PrinterBusy("another job is on the printer")
         if self.printer is not None and not self.printer.connected:
             raise PrinterBusy("the printer is not ready (serial link down or halted): wait for "
                               "it to reconnect, or hostctl firmware-restart after a halt")
         left = self._left.setdefault(job_id, asyncio.Event())
-        if paused:
-            self.active.streamer.request_resume()
+        if paused is not None:
+            paused.streamer.request_resume()
         else:
             self._resume_request = (job_id, scope)
             self._wake_print.set()

@@ -14,6 +14,7 @@ The owner asks :meth:`JobStore.claim_checkpoint` after its writes and runs
 
 from __future__ import annotations
 
+import builtins
 import json
 import sqlite3
 import time
@@ -335,7 +336,7 @@ class JobStore:
                                (sha, sha)).fetchone()
         return int(row[0])
 
-    def history(self, job_id: int) -> list[dict[str, Any]]:
+    def history(self, job_id: int) -> builtins.list[dict[str, Any]]:
         rows = self._db.execute("SELECT at, old, new, reason FROM history WHERE job_id = ?"
                                 " ORDER BY rowid", (job_id,)).fetchall()
         return [dict(r) for r in rows]
@@ -353,7 +354,7 @@ class JobStore:
                                f"({','.join('?' * len(names))})", names).fetchone()
         return int(row[0])
 
-    def recover(self) -> list[Job]:
+    def recover(self) -> builtins.list[Job]:
         """After a restart: printing/paused jobs become ``interrupted``, slicing ``queued``.
 
         Returns the jobs that changed.
@@ -382,7 +383,7 @@ class JobStore:
                                (cur.lastrowid,)).fetchone()
         return _checkpoint(row)
 
-    def checkpoints(self, job_id: int) -> list[Checkpoint]:
+    def checkpoints(self, job_id: int) -> builtins.list[Checkpoint]:
         rows = self._db.execute("SELECT * FROM checkpoints WHERE job_id = ? ORDER BY seq",
                                 (job_id,)).fetchall()
         return [_checkpoint(r) for r in rows]

@@ -301,7 +301,7 @@ class SerialLink:
         if wanted is Position:
             found += [r.position for r in answer.replies
                       if isinstance(r, Ok) and r.position is not None]
-        informative = [r for r in answer.replies if not isinstance(r, Ok)]
+        informative: list[Reply] = [r for r in answer.replies if not isinstance(r, Ok)]
         fut.set_result(found[-1] if found else (informative or list(answer.replies))[-1])
 
     def _failed(self, error: errors.LinkError) -> None:

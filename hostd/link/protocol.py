@@ -135,6 +135,8 @@ class Protocol:
     handshake.
     """
 
+    _seq: int  # the submission number of the last line submitted (0 after _clear)
+
     def __init__(self, settings: LinkSettings) -> None:
         self.settings = settings
         self.counters = LinkCounters()

@@ -281,7 +281,11 @@ def parse_advanced_ok(line: str | bytes) -> Ok | None:
     """Marlin's ADVANCED_OK reply to a numbered line, ``ok N<n> P<p> B<b>`` exactly, in one
     regular-expression match: the :class:`Ok` :func:`parse_reply` gives for it, or ``None``
     for any other line (``parse_reply`` reads every form)."""
-    match = (_ADVANCED_OK_BYTES if isinstance(line, bytes) else _ADVANCED_OK_TEXT).fullmatch(line)
+    match: re.Match[bytes] | re.Match[str] | None
+    if isinstance(line, bytes):
+        match = _ADVANCED_OK_BYTES.fullmatch(line)
+    else:
+        match = _ADVANCED_OK_TEXT.fullmatch(line)
     if match is None:
         return None
     number, planner, slots = match.groups()

@@ -144,7 +144,7 @@ class DirectSerialTransport(serial_asyncio.SerialTransport):
             self._held = None
         super().pause_reading()
 
-    def write(self, data: bytes) -> None:  # type: ignore[override]
+    def write(self, data: bytes) -> None:
         if self._hold is not None:
             self._hold.wrote(self._loop.time(), len(data))
         if self._closing or self._write_buffer or not data:

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -115,9 +115,9 @@ class Envelope:
                 f"machine's travel [{lo:g}, {hi:g}] ({RANGE_KEYS[axis]})")
 
 
-def envelope_from_config(values: dict[str, Any]) -> Envelope:
+def envelope_from_config(values: Mapping[str, Any]) -> Envelope:
     """The envelope of a config's dotted ``values``."""
-    ranges = {axis: tuple(map(float, values[key])) for axis, key in RANGE_KEYS.items()
+    ranges = {axis: _range(values[key]) for axis, key in RANGE_KEYS.items()
               if values.get(key) is not None}
     segments = [[float(s[k]) for k in ("start", "end", "r_start", "r_end")]
                 for s in values["printhead.segments"]]
@@ -125,8 +125,13 @@ def envelope_from_config(values: dict[str, Any]) -> Envelope:
                   if key != "printhead"}
     heaters = {heater: float(values[key]) for heater, key in HEATER_KEYS.items()
                if values.get(key) is not None}
-    return Envelope(ranges, {**kinematics, "printhead": segments},  # type: ignore[arg-type]
-                    heaters)
+    return Envelope(ranges, {**kinematics, "printhead": segments}, heaters)
+
+
+def _range(value: Iterable[Any]) -> tuple[float, float]:
+    """A config's ``[min, max]`` travel as floats."""
+    lo, hi = map(float, value)
+    return lo, hi
 
 
 def _same(a: Any, b: Any) -> bool:

@@ -9,6 +9,7 @@ delays and simulated-time events are single ``call_at`` timers.
 from __future__ import annotations
 
 import asyncio
+import socket
 from collections import deque
 from collections.abc import Callable
 
@@ -183,11 +184,11 @@ class SocketEmulator:
         self._side = side
 
     @classmethod
-    async def serve(cls, settings: SimSettings, sock: object) -> SocketEmulator:
+    async def serve(cls, settings: SimSettings, sock: socket.socket) -> SocketEmulator:
         """Attach a fresh emulator to ``sock`` (a connected stream socket)."""
         loop = asyncio.get_running_loop()
         side = _SocketSide(settings)
-        await loop.create_connection(lambda: side, sock=sock)  # type: ignore[arg-type]
+        await loop.create_connection(lambda: side, sock=sock)
         return cls(side)
 
     @property

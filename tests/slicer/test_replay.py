@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from handmade_plans import H, box_plan, frame, prism_layers, prism_mesh, two_part_plan
@@ -9,7 +11,7 @@ from handmade_plans import H, box_plan, frame, prism_layers, prism_mesh, two_par
 from kinematics.machine import MachineGeometry
 from slicer import replay, replay_collide
 from slicer.gcode import MachineSetup, generate
-from slicer.gcode_reader import parse_lines
+from slicer.gcode_reader import GcodeFormatError, parse_lines
 from slicer.plan import PrintPlan, SubpartPlan
 from slicer.replay import model_index, replay_check
 from slicer.replay_coverage import shell_depth, shell_grid
@@ -171,6 +173,22 @@ def test_a_prebuilt_model_index_gives_the_same_figures_and_a_wrong_one_is_not_us
     assert reps[0] == reps[1] == reps[2] == reps[3]  # another line width: rebuilt here
     assert len(gridded.grids) == 1  # the replay used the grid built before
 
+
+
+@pytest.mark.parametrize(("key", "value"), [
+    ("table_origin", [250.0, 250.0]),
+    ("a_pivot", [250.0, 250.0, 80.0, 1.0]),
+    ("a_limits", [-90.0]),
+    ("c_limits", [-180.0, 0.0, 180.0]),
+])
+def test_a_kinematics_vector_of_another_length_is_a_format_error(key, value):
+    # it was taken as it stood, and the replay failed later in numpy (operands could not be
+    # broadcast together) instead of naming the header
+    kinematics = {"type": "xyzac-trt", "table_origin": [250.0, 250.0, 100.0],
+                  "a_pivot": [250.0, 250.0, 80.0], key: value}
+    parsed = parse_lines([f";HOSTD_KINEMATICS {json.dumps(kinematics)}", "G1 X1 Y1 Z1 A0 C0"])
+    with pytest.raises(GcodeFormatError, match=";HOSTD_KINEMATICS: bad"):
+        geometry_from_header(parsed)
 
 def test_inside_test_with_coarse_lines_casts_rays_near_the_surface():
     d = np.array([0.0, -np.sin(np.radians(30)), np.cos(np.radians(30))])
