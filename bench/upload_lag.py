@@ -47,10 +47,9 @@ async def one_run(root: Path, lines: int) -> tuple[float, list[float]]:
 
     with tempfile.TemporaryDirectory() as name:
         tmp = Path(name)
-        cfg = defaults()
-        cfg.values.update({"daemon.state_dir": str(tmp / "state"),
-                           "daemon.socket": str(tmp / "hostd.sock"),
-                           "serial.port": "sim://", "metrics.enabled": False})
+        cfg = defaults().replace(daemon__state_dir=str(tmp / "state"),
+                                 daemon__socket=str(tmp / "hostd.sock"),
+                                 serial__port="sim://", metrics__enabled=False)
         d = Daemon(cfg)
         await d.start()
         try:

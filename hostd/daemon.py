@@ -121,7 +121,7 @@ class Daemon:
             self._lock.acquire()
             self.store = JobStore(self.state_dir / "jobs.db")
             spool = Spool(self.state_dir / "spool", self.config["daemon.max_upload_bytes"])
-            self.worker = SlicingWorker(self.state_dir / "cache", self.config.values)
+            self.worker = SlicingWorker(self.state_dir / "cache", self.config.data)
         except (StoreError, StateLockError) as exc:
             raise DaemonError(str(exc)) from None
         except OSError as exc:
@@ -129,7 +129,7 @@ class Daemon:
                               f" {exc.strerror or exc}") from None
         self._jobs = JobManager(self.store, spool, self.worker, lambda: LinkPort(self.link),
                                 self.bus, stream_settings(self.config),
-                                envelope_from_config(self.config.values), printer=self.link,
+                                envelope_from_config(self.config.data), printer=self.link,
                                 hold_after_print=self.config["daemon.next_job"] == "after_clear")
         self.server = ControlServer(
             self.config["daemon.socket"], build_registry(self), self.bus,

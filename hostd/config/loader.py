@@ -27,29 +27,27 @@ class ConfigError(Exception):
 class Config(Mapping[str, Any]):
     """Validated configuration: dotted keys (``machine.a_limits``) to typed values."""
 
-    # The public field shadows Mapping.values(), so config.values() is not callable: read
-    # config.values (the mapping itself) or config.items(). Renaming it would change the API.
-    values: Mapping[str, Any]  # type: ignore[assignment]
+    data: Mapping[str, Any]  # (named as UserDict's: a field "values" hid Mapping.values())
     source: str = "<defaults>"
 
     def __getitem__(self, key: str) -> Any:
-        return self.values[key]
+        return self.data[key]
 
     def __iter__(self) -> Iterator[str]:
-        return iter(self.values)
+        return iter(self.data)
 
     def __len__(self) -> int:
-        return len(self.values)
+        return len(self.data)
 
     def section(self, name: str) -> dict[str, Any]:
         """All keys of one section, without the section prefix."""
         if name not in SCHEMA:
             raise KeyError(name)
-        return {k: self.values[f"{name}.{k}"] for k in SCHEMA[name]}
+        return {k: self.data[f"{name}.{k}"] for k in SCHEMA[name]}
 
     def replace(self, **dotted: Any) -> Config:
         """A copy with some values replaced (keys given with ``__`` for the dot)."""
-        new = dict(self.values)
+        new = dict(self.data)
         for k, v in dotted.items():
             key = k.replace("__", ".")
             if key not in new:
@@ -78,7 +76,7 @@ def load(path: str | Path) -> Config:
 def loads(text: str, name: str = "<string>") -> Config:
     """Validate YAML ``text``; ``name`` is the file name used in error messages."""
     root = _compose(text, name)
-    values = dict(defaults().values)
+    values = dict(defaults().data)
     if root is None:
         return Config(values, name)
     if not isinstance(root, yaml.MappingNode):
@@ -176,7 +174,7 @@ def _script_gcode(c: Config, key: str) -> str | None:
 
     try:
         program = parse_program(filled(c, c[key]))
-        envelope_from_config(c.values).check_temperatures(program)
+        envelope_from_config(c.data).check_temperatures(program)
     except ProgramError as exc:
         return f"script {exc}"
     return None

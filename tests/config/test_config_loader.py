@@ -40,6 +40,12 @@ def test_empty_file_gives_defaults() -> None:
     assert dict(loads("", "x.yaml")) == dict(defaults())
 
 
+def test_a_config_is_a_whole_mapping() -> None:
+    cfg = loads("serial:\n  baud: 250000\n", "m.yaml")
+    assert list(cfg.values()) == [cfg[k] for k in cfg]  # values() was hidden by a field
+    assert dict(cfg.items())["serial.baud"] == 250000 and len(cfg) == len(list(cfg.keys()))
+
+
 def test_partial_file_overrides_only_what_it_states() -> None:
     cfg = loads("machine:\n  a_limits: [-45, 60]\nserial:\n  baud: 250000\n", "p.yaml")
     assert cfg["machine.a_limits"] == (-45.0, 60.0)

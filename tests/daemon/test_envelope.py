@@ -14,7 +14,7 @@ from hostd.printer.envelope import _Travel, envelope_from_config, travel_extents
 from hostd.printer.errors import ProgramError
 from hostd.printer.program import parse_program
 
-ENVELOPE = envelope_from_config(defaults().values)
+ENVELOPE = envelope_from_config(defaults().data)
 number = st.floats(-1000, 1000, allow_nan=False).map(lambda v: round(v, 3))
 axes = st.sets(st.sampled_from("XYZAC"), min_size=1)
 

@@ -164,7 +164,7 @@ def test_daemon_worker_reports_the_travel_in_one_line(tmp_path):
 
     stl, out = tmp_path / "cyl.stl", tmp_path / "cyl.gcode"
     cylinder(radius=6.0, height=12.0).export(stl)
-    values = dict(defaults().replace(machine__z_range=[0, 150]).values)
+    values = dict(defaults().replace(machine__z_range=[0, 150]).data)
     with pytest.raises(SliceError) as err:
         slice_in_worker(str(stl), values, str(out))
     assert "outside machine.z_range [0, 150]" in str(err.value)
