@@ -40,6 +40,18 @@ class Tolerances:
     straight_thick: float = 0.15  # ... or below this fraction of the part's smallest extent
     snap_deg: float = 5.0  # a straight axis this close to the base normal is the base normal
     turn_margin: float = 0.9  # fraction of the thickness slack a turn may use
+    # decomposition (slicer.overhang, slicer.decompose)
+    overhang_deg: float = 45.0  # a face overhangs when its normal points further below
+    #                             the plane square to the build direction (FDM's 45° rule)
+    cut_tol: float = 1e-3  # mm: a face this close to a cut plane (or z = 0) lies on it
+    cut_cos: float = 0.999  # |n · plane normal| above this: a face is parallel to a cut
+    overhang_retry_abs: float = 5.0  # mm²: a decomposition overhanging more than this ...
+    overhang_retry_rel: float = 0.01  # ... and this share of the surface: try other seeds
+    overhang_refuse_abs: float = 100.0  # mm²: a sub-part of the best result overhanging more
+    overhang_refuse_rel: float = 0.05  # ... and than this share of the surface: refused
+    retry_seeds: int = 4  # further (seed, K) attempts after the configured one
+    min_volume_share: float = 1e-3  # a sub-part below this share of the volume is degenerate
+    min_base_share: float = 1e-3  # ... or with a base below this share of (volume)^(2/3)
 
 
 TOL = Tolerances()
