@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import functools
 import json
+import logging
 import time
-from dataclasses import dataclass, field
+from collections.abc import Iterator
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import manifold3d as m3
@@ -24,7 +26,8 @@ from scipy.spatial import cKDTree
 from kinematics.machine import MachineGeometry
 from slicer.buildorder import MERGE_ANGLE, Groups, group_regions_refined, root_region
 from slicer.mesh_io import check_size, place_on_platform, repair, separate_bodies
-from slicer.partition import Partition, coarse_partition
+from slicer.overhang import Overhang, decomposition_overhang
+from slicer.partition import K_MIN, Partition, analysis_mesh, auto_k, coarse_partition
 from slicer.plane_refine import ParentFrame, refine_plane, splits_clear
 from slicer.planes import (
     Check,
@@ -37,11 +40,13 @@ from slicer.planes import (
     surface_samples,
     verify_base,
 )
+from slicer.planes2d import TOL
 from slicer.printhead import Printhead
 from slicer.samples import to_manifold, to_trimesh
 from slicer.split import search_proxy, split_piece, split_solid
 
 UP = np.array([0.0, 0.0, 1.0])
+log = logging.getLogger(__name__)
 
 
 class DecompositionError(ValueError):
@@ -123,6 +128,12 @@ class Decomposition:
         Seconds per stage.
     regions : int
         Coarse regions after clean-up; ``k`` is the K given to k-means.
+    seed : int
+        Seed of the attempt kept (``settings.seed`` unless a retry did better).
+    attempts : list of str
+        One line per attempt, in the order tried (seed, K, outcome).
+    overhang : list of Overhang
+        Overhanging surface of every sub-part (:mod:`slicer.overhang`).
     """
 
     placement: np.ndarray
@@ -134,6 +145,25 @@ class Decomposition:
     k: int
     partition: Partition | None = field(default=None, repr=False)
     groups: Groups | None = field(default=None, repr=False)
+    seed: int = 0
+    attempts: list[str] = field(default_factory=list)
+    overhang: list[Overhang] = field(default_factory=list)
+
+    @property
+    def overhang_deg(self) -> float:
+        """The overhang limit the areas are measured against, degrees from horizontal."""
+        return TOL.overhang_deg
+
+    @property
+    def overhang_area(self) -> float:
+        """Overhanging area of all sub-parts, mm²."""
+        return float(sum(o.area for o in self.overhang))
+
+    def summary(self) -> str:
+        """One line: sub-parts, the attempt kept and the overhang left."""
+        return (f"{len(self.subparts)} sub-parts, seed {self.seed}, k={self.k} "
+                f"({len(self.attempts)} attempt{'s' if len(self.attempts) != 1 else ''}), "
+                f"overhang {self.overhang_area:.1f} mm² over {TOL.overhang_deg:g}°")
 
     def to_json(self) -> dict[str, object]:
         """The ``decomposition.json`` payload (files named ``part_<k>.stl``)."""
@@ -143,24 +173,42 @@ class Decomposition:
             "order": list(self.order),
             "coarse_k": self.k,
             "coarse_regions": self.regions,
-            "subparts": [_subpart_json(s) for s in self.subparts],
+            "seed": self.seed,
+            "attempts": list(self.attempts),
+            "overhang_deg": TOL.overhang_deg,
+            "subparts": [_subpart_json(s, o) for s, o in
+                         zip(self.subparts, self._overhangs(), strict=True)],
         }
 
 
-def _subpart_json(s: Subpart) -> dict[str, object]:
+    def _overhangs(self) -> list[Overhang | None]:
+        if len(self.overhang) == len(self.subparts):
+            return list(self.overhang)
+        return [None] * len(self.subparts)
+
+
+def _subpart_json(s: Subpart, over: Overhang | None) -> dict[str, object]:
     plane = None if s.base_plane is None else {
         "point": np.asarray(s.base_plane.point).tolist(),
         "normal": np.asarray(s.base_plane.normal).tolist()}
     return {"index": s.index, "parent": s.parent, "file": f"part_{s.index}.stl",
             "volume_mm3": s.volume, "base_plane": plane, "base_area_mm2": s.base_area,
             "build_direction": np.asarray(s.build_direction).tolist(),
-            "plane_iterations": s.iterations}
+            "plane_iterations": s.iterations,
+            "overhang_mm2": None if over is None else over.area}
 
 
 def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: MachineGeometry,
               head: Printhead, build_volume: np.ndarray | None = None,
               placement: np.ndarray | None = None) -> Decomposition:
     """Decompose a part into support-free sub-parts.
+
+    The configured seed (and K) is tried first. When it is refused, or its sub-parts overhang
+    more than the retry threshold (:attr:`~slicer.planes2d.Tolerances.overhang_retry_abs` and
+    ``overhang_retry_rel`` of the surface), up to ``TOL.retry_seeds`` further attempts follow
+    (:func:`attempt_plan`), and the valid result with the least overhang is kept (ties: fewest
+    sub-parts, then the first tried). A best result with a sub-part overhanging more than the
+    refusal threshold (``overhang_refuse_abs`` and ``overhang_refuse_rel``) is refused.
 
     Parameters
     ----------
@@ -187,25 +235,103 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     if bodies:
         raise DecompositionError(bodies)
     clock.lap("load")
-    part = coarse_partition(mesh, settings.parts or None, settings.seed)
+    area = float(mesh.area)
+    retry_above = max(TOL.overhang_retry_abs, TOL.overhang_retry_rel * area)
+    tried: list[str] = []
+    results: list[Decomposition] = []
+    first_error: DecompositionError | None = None
+    for seed, k in attempt_plan(mesh, settings):
+        try:
+            dec = _attempt(mesh, settings, seed, k, machine, head, clock)
+        except RootRegionError:
+            raise
+        except DecompositionError as exc:
+            tried.append(f"seed {seed} k={k or 'auto'}: refused: {exc}")
+            first_error = first_error or exc
+            continue
+        tried.append(f"seed {seed} k={dec.k}: {len(dec.subparts)} sub-parts, overhang "
+                     f"{dec.overhang_area:.1f} mm²")
+        results.append(dec)
+        if dec.overhang_area <= retry_above:
+            break
+    if not results:
+        assert first_error is not None
+        more = len(tried) - 1
+        raise DecompositionError(str(first_error) + (
+            f" (and {more} further seed{'s' if more != 1 else ''} refused too)" if more else ""))
+    best = min(results, key=lambda d: (round(d.overhang_area, 1), len(d.subparts)))
+    best.placement = np.asarray(placement, dtype=float)
+    best.attempts = tried
+    best.timings = clock.laps
+    for line in tried:
+        log.debug("decompose attempt: %s", line)
+    _refuse_overhang(best, area)
+    log.info("decomposition: %s", best.summary())
+    return best
+
+
+def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings
+                 ) -> Iterator[tuple[int, int]]:
+    """The (seed, K) attempts of :func:`decompose`, in order; K = 0 is automatic.
+
+    First the configured ones. Then ``TOL.retry_seeds`` more, derived from the configured
+    seed (seed + i·1 000 003, modulo 2³¹, so each is reproducible with ``--seed``/``--parts``);
+    with an automatic K the i-th retry also coarsens it to K₀/i (never below ``K_MIN``):
+    k-means over-segments box-like parts into many flat patches whose groups often leave a
+    horizontal overhang with the root, and coarser patches group it right (Γ bracket: K 24
+    gives a valid split for 5 of 31 seeds, K 6–8 for 12 of 12). A fixed ``--root`` names a
+    region of the configured seed's partition, so it gets no retries.
+    """
+    yield settings.seed, settings.parts
+    if settings.root is not None:
+        return
+    k0 = settings.parts or auto_k(analysis_mesh(mesh))
+    for i in range(1, TOL.retry_seeds + 1):
+        seed = (settings.seed + i * 1_000_003) % 2**31
+        k = settings.parts or max(K_MIN, round(k0 / i))
+        yield seed, k
+
+
+def _attempt(mesh: trimesh.Trimesh, settings: DecomposeSettings, seed: int, k: int,
+             machine: MachineGeometry, head: Printhead, clock: _Clock) -> Decomposition:
+    """One decomposition with ``seed`` and K = ``k`` (0: automatic), overhang measured."""
+    part = coarse_partition(mesh, k or None, seed)
     clock.lap("partition")
     root = root_region(part) if settings.root is None else settings.root
     if not 0 <= root < part.count:
         raise RootRegionError(root, part.count)
     try:
-        part, groups = group_regions_refined(part, root, settings.merge_angle,
-                                             settings.seed)
+        part, groups = group_regions_refined(part, root, settings.merge_angle, seed)
     except ValueError as exc:
         raise DecompositionError(str(exc)) from None
     clock.lap("build_order")
     solid = to_manifold(mesh)
-    subparts = _cut_all(mesh, solid, part, groups, settings, machine, head)
+    subparts, order = _cut_all(mesh, solid, part, groups, replace(settings, seed=seed),
+                               machine, head)
     clock.lap("planes_split")
     _verify(subparts, machine, head)
     clock.lap("verify")
-    return Decomposition(np.asarray(placement, dtype=float), subparts, groups.order,
-                         float(solid.volume()), clock.laps, part.count, part.k_requested, part,
-                         groups)
+    over = decomposition_overhang([s.mesh for s in subparts], [s.parent for s in subparts],
+                                  [s.base_plane for s in subparts],
+                                  [s.build_direction for s in subparts])
+    clock.lap("overhang")
+    return Decomposition(np.eye(4), subparts, order, float(solid.volume()), clock.laps,
+                         part.count, part.k_requested, part, groups, seed, [], over)
+
+
+def _refuse_overhang(dec: Decomposition, area: float) -> None:
+    """Raise when a sub-part of ``dec`` overhangs more than the refusal threshold."""
+    limit = max(TOL.overhang_refuse_abs, TOL.overhang_refuse_rel * area)
+    worst = max(dec.overhang, key=lambda o: o.area)
+    if worst.area <= limit or worst.point is None:
+        return
+    where = "[" + ", ".join(f"{x:.1f}" for x in worst.point) + "]"
+    tries = len(dec.attempts)
+    raise DecompositionError(
+        f"sub-part {worst.index} overhangs {worst.area:.0f} mm² more than "
+        f"{TOL.overhang_deg:g}° from its build direction, near {where} mm (limit "
+        f"{limit:.0f} mm²; best of {tries} seed{'s' if tries != 1 else ''}, kept seed "
+        f"{dec.seed}): it would print in the air; no support-free decomposition was found")
 
 
 class _Clock:
@@ -214,18 +340,29 @@ class _Clock:
         self.laps: dict[str, float] = {}
 
     def lap(self, name: str) -> None:
+        """Add the time since the last lap to ``name`` (attempts accumulate)."""
         now = time.perf_counter()
-        self.laps[name] = now - self.t
+        self.laps[name] = self.laps.get(name, 0.0) + now - self.t
         self.t = now
 
 
 def _cut_all(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition, groups: Groups,
              settings: DecomposeSettings, machine: MachineGeometry,
-             head: Printhead) -> list[Subpart]:
+             head: Printhead) -> tuple[list[Subpart], list[int]]:
     """Cut every group from its parent's piece, in build order.
 
     Planes are searched on a simplified proxy of each piece (:func:`search_proxy`; the piece
-    itself when it is small); every plane then cuts the full-resolution solid once.
+    itself when it is small); every plane then cuts the full-resolution solid once. A cut
+    whose child would be degenerate (volume below ``TOL.min_volume_share`` of the part's, or
+    base below ``TOL.min_base_share`` of volume^(2/3)) is not made: the group stays with its
+    parent's piece, and its children are cut from that piece.
+
+    Returns
+    -------
+    subparts : list of Subpart
+        Indexed 0.. in build order.
+    order : list of int
+        Build order (``subparts`` indices).
     """
     face_group = groups.region_group[part.labels]
     tree = cKDTree(part.mesh.triangles_center)
@@ -235,20 +372,29 @@ def _cut_all(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition, groups:
     on_base = (mesh.face_normals[:, 2] < -0.999) & (np.abs(mesh.triangles_center[:, 2]) < 1e-3)
     base_area = float(mesh.area_faces[on_base].sum())
     subparts: dict[int, Subpart] = {0: Subpart(0, None, mesh, None, base_area, UP)}
+    owner = {0: 0}  # group -> group whose piece holds it (itself unless merged back)
+    volume = float(solid.volume())
+    min_volume = TOL.min_volume_share * volume
+    min_base = TOL.min_base_share * volume ** (2.0 / 3.0)
     rng = np.random.default_rng(settings.seed)
     for g in groups.order[1:]:
-        pg = groups.parent[g]
-        assert pg is not None
+        nominal = groups.parent[g]
+        assert nominal is not None
+        pg = owner[nominal]
         piece = pieces[pg]
         region = _subtree(groups, g)[face_group[tree.query(piece.triangles_center)[1]]]
         others = [p for k, p in pieces.items() if k != pg]
         ctx = PieceContext(piece, region, surface_samples(others, settings.seed), head,
                            machine.a_limits, settings.seed)
-        check, its = _find_plane(ctx, part, face_group, groups, g, pg, settings, rng)
+        check, its = _find_plane(ctx, part, face_group, groups, g, nominal, settings, rng)
         check, more = refine_plane(ctx, check, _frame_of(subparts[pg]), groups.direction[g],
                                    settings.search, rng)
         its += more
         child, rest = split_solid(solids[pg], check.plane, piece, check.child_faces)
+        if child.volume() < min_volume or check.area < min_base:
+            owner[g] = pg  # degenerate: never produced, the group prints with its parent
+            continue
+        owner[g] = g
         solids[pg], solids[g] = rest, child
         if proxy is mesh:
             pieces[pg], pieces[g] = to_trimesh(rest), to_trimesh(child)
@@ -257,7 +403,15 @@ def _cut_all(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition, groups:
         subparts[g] = Subpart(g, pg, mesh, check.plane, check.area, check.plane.normal, its)
     for g, s in subparts.items():
         s.mesh = pieces[g] if proxy is mesh else to_trimesh(solids[g])
-    return [subparts[g] for g in sorted(subparts)]
+    kept = [g for g in groups.order if g in subparts]
+    index = {g: i for i, g in enumerate(kept)}
+    out = []
+    for g in kept:
+        s = subparts[g]
+        s.index = index[g]
+        s.parent = None if s.parent is None else index[s.parent]
+        out.append(s)
+    return out, list(range(len(out)))
 
 
 def _frame_of(parent: Subpart) -> ParentFrame:
@@ -304,7 +458,10 @@ def _find_plane(ctx: PieceContext, part: Partition, face_group: np.ndarray, grou
             return check, total
         best = check if best is None or check.penalty < best.penalty else best
     assert best is not None
-    raise DecompositionError(_failure(best, g, pg, total))
+    # name a point on the part: the boundary point nearest the plane's (which may lie in
+    # empty space once the search has moved the plane)
+    where = pts[int(np.argmin(np.linalg.norm(pts - best.plane.point, axis=1)))]
+    raise DecompositionError(_failure(best, g, pg, total, where))
 
 
 def nearest_reachable(direction: np.ndarray, a_limits: tuple[float, float]) -> np.ndarray:
@@ -342,8 +499,8 @@ def nearest_reachable(direction: np.ndarray, a_limits: tuple[float, float]) -> n
     return np.array([np.sin(t) * np.cos(az), np.sin(t) * np.sin(az), np.cos(t)])
 
 
-def _failure(check: Check, g: int, pg: int, iterations: int) -> str:
-    where = "[" + ", ".join(f"{x:.1f}" for x in check.plane.point) + "]"
+def _failure(check: Check, g: int, pg: int, iterations: int, point: np.ndarray) -> str:
+    where = "[" + ", ".join(f"{x:.1f}" for x in point) + "]"
     head = f"boundary between sub-part {pg} and sub-part {g} near {where} mm"
     if not check.valid:
         why = "constraint II fails: no plane leaves the child on its positive side"
@@ -365,7 +522,9 @@ def _verify(subparts: list[Subpart], machine: MachineGeometry, head: Printhead) 
             obstacles = surface_samples(printed, 0)
             problem = verify_base(s.mesh, s.base_plane, obstacles, head, machine.a_limits)
             if problem:
-                where = "[" + ", ".join(f"{x:.1f}" for x in s.base_plane.point) + "]"
+                near = s.mesh.vertices[np.argmin(np.linalg.norm(
+                    s.mesh.vertices - s.base_plane.point, axis=1))]  # a point on the part
+                where = "[" + ", ".join(f"{x:.1f}" for x in near) + "]"
                 raise DecompositionError(
                     f"boundary between sub-part {s.parent} and sub-part {s.index} near {where}"
                     f" mm: the final check of the cut sub-parts fails: {problem}")
@@ -384,5 +543,5 @@ def write_decomposition(dec: Decomposition, out_dir: str | Path) -> Path:
 
 
 __all__ = ["DecomposeSettings", "Decomposition", "DecompositionError", "PlaneSearchError",
-           "RootRegionError", "Subpart", "decompose", "nearest_reachable",
+           "RootRegionError", "Subpart", "attempt_plan", "decompose", "nearest_reachable",
            "write_decomposition"]

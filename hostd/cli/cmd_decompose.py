@@ -106,12 +106,18 @@ def run(args: argparse.Namespace) -> int:
 
 def _table(dec: Any, seconds: float) -> None:
     print(f"{'part':>4} {'parent':>6} {'volume mm³':>11} {'base mm²':>9} "
-          f"{'direction':>22} {'iter':>5}")
+          f"{'direction':>22} {'iter':>5} {'overhang':>9}")
     for s in dec.subparts:
         d = "[" + ", ".join(f"{x:+.2f}" for x in s.build_direction) + "]"
         parent = "-" if s.parent is None else str(s.parent)
+        over = dec.overhang[s.index].area if len(dec.overhang) == len(dec.subparts) else 0.0
         print(f"{s.index:>4} {parent:>6} {s.volume:>11.1f} {s.base_area:>9.1f} {d:>22} "
-              f"{s.iterations:>5}")
+              f"{s.iterations:>5} {over:>9.1f}")
     total = sum(s.volume for s in dec.subparts)
     print(f"{len(dec.subparts)} sub-parts, {total:.1f} of {dec.volume:.1f} mm³, "
           f"k={dec.k} ({dec.regions} regions), order {dec.order}, {seconds:.2f} s")
+    if len(dec.attempts) > 1:
+        for line in dec.attempts:
+            print(f"  tried {line}")
+    print(f"seed {dec.seed} (attempt {len(dec.attempts)}), overhang {dec.overhang_area:.1f} mm²"
+          f" beyond {dec.overhang_deg:g}°")

@@ -1,4 +1,4 @@
-"""Overhang of a decomposition: the measure against hand-computed areas.
+"""Overhang of a decomposition, and what the decomposition does about it.
 
 The measure (``slicer.overhang``) is checked against hand-computed areas on boxes and a T; the
 decomposition against the QA's Γ bracket and mushroom (built here with manifold3d): the Γ
@@ -9,20 +9,64 @@ the part, and the sample pipes must keep today's result on the first attempt.
 
 from __future__ import annotations
 
+import re
+
 import manifold3d as m3
 import numpy as np
 import pytest
+import trimesh
 
+from kinematics.machine import MachineGeometry
 from slicer import samples
-from slicer.overhang import subpart_overhang
+from slicer.buildorder import root_region
+from slicer.decompose import DecomposeSettings, DecompositionError, decompose
+from slicer.mesh_io import place_on_platform, repair
+from slicer.overhang import decomposition_overhang, subpart_overhang
+from slicer.partition import coarse_partition
 from slicer.planes import Plane
+from slicer.planes2d import TOL
+from slicer.printhead import Printhead
 
+HEAD = Printhead.default()
+MACHINE = MachineGeometry()
 UP = np.array([0.0, 0.0, 1.0])
 X = np.array([1.0, 0.0, 0.0])
 
 
 def box(lo: tuple[float, float, float], size: tuple[float, float, float]) -> m3.Manifold:
     return m3.Manifold.cube(list(size)).translate(list(lo))
+
+
+def gamma() -> trimesh.Trimesh:
+    """The QA's Γ bracket: a 10×10×40 column with a 30×10×8 arm on top, placed."""
+    solid = box((0, 0, 0), (10, 10, 40)) + box((0, 0, 32), (30, 10, 8))
+    return place_on_platform(repair(samples.to_trimesh(solid)))[0]
+
+
+def mushroom() -> trimesh.Trimesh:
+    """The QA's mushroom: stem r 4 h 20, cap r 15 h 5 on top, placed."""
+    solid = (m3.Manifold.cylinder(20, 4, 4, 48)
+             + m3.Manifold.cylinder(5, 15, 15, 48).translate([0, 0, 20]))
+    return place_on_platform(repair(samples.to_trimesh(solid)))[0]
+
+
+def overhangs(dec) -> list[float]:
+    """Overhang per sub-part, measured again here on the returned meshes."""
+    return [o.area for o in decomposition_overhang(
+        [s.mesh for s in dec.subparts], [s.parent for s in dec.subparts],
+        [s.base_plane for s in dec.subparts], [s.build_direction for s in dec.subparts])]
+
+
+def on_surface(mesh: trimesh.Trimesh, point: np.ndarray) -> float:
+    """Distance from ``point`` to the surface of ``mesh`` (brute force, no spatial index)."""
+    near = trimesh.triangles.closest_point(mesh.triangles, np.repeat([point], len(mesh.faces), 0))
+    return float(np.linalg.norm(near - point, axis=1).min())
+
+
+def named_point(message: str) -> np.ndarray:
+    found = re.search(r"near \[([-\d.]+), ([-\d.]+), ([-\d.]+)\]", message)
+    assert found, message
+    return np.array([float(v) for v in found.groups()])
 
 
 # --- the measure -----------------------------------------------------------------------------
@@ -70,3 +114,86 @@ def test_faces_on_a_childs_cut_do_not_count_for_the_parent():
     assert subpart_overhang(0, mesh, parent_dir, [], False).area == pytest.approx(100.0)
     child_base = Plane(np.array([10.0, 0.0, 0.0]), X)
     assert subpart_overhang(0, mesh, parent_dir, [child_base], False).area == pytest.approx(0.0)
+
+
+# --- the decomposition -----------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def gamma_mesh() -> trimesh.Trimesh:
+    return gamma()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 5])
+def test_gamma_bracket_arm_does_not_print_in_the_air(gamma_mesh, seed):
+    """QA finding 1: seeds 0 and 1 kept the arm (200 mm² at 90°) in the root, 2/4/5 refused."""
+    dec = decompose(gamma_mesh, DecomposeSettings(seed=seed), MACHINE, HEAD, None, np.eye(4))
+    small = max(TOL.overhang_retry_abs, TOL.overhang_retry_rel * gamma_mesh.area)
+    assert len(dec.subparts) == 2
+    assert max(overhangs(dec)) <= small
+    assert overhangs(dec) == pytest.approx([o.area for o in dec.overhang])
+    total = sum(s.volume for s in dec.subparts)
+    assert total == pytest.approx(gamma_mesh.volume, rel=1e-4)
+    arm = dec.subparts[1]  # the arm beyond the column prints sideways, along ±X
+    assert abs(arm.build_direction[0]) > 0.9
+    assert arm.volume > 0.25 * (20 * 10 * 8)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 5])
+def test_no_degenerate_sub_part(gamma_mesh, seed):
+    """QA finding 2: seed 0 cut a 6e-5 mm³ sliver (base 0.038 mm²) off the arm's tip."""
+    dec = decompose(gamma_mesh, DecomposeSettings(seed=seed), MACHINE, HEAD, None, np.eye(4))
+    volume = gamma_mesh.volume
+    for s in dec.subparts[1:]:
+        assert s.volume >= TOL.min_volume_share * volume
+        assert s.base_area >= TOL.min_base_share * volume ** (2 / 3)
+
+
+def test_degenerate_cut_is_merged_back_not_kept(gamma_mesh):
+    """Seed 0's own partition (no retries with a fixed root): the sliver is not a sub-part."""
+    part = coarse_partition(gamma_mesh, None, 0)
+    settings = DecomposeSettings(seed=0, root=root_region(part))
+    with pytest.raises(DecompositionError, match="overhangs 200 mm²"):
+        decompose(gamma_mesh, settings, MACHINE, HEAD, None, np.eye(4))
+
+
+def test_refusal_names_a_point_on_the_part(gamma_mesh):
+    """QA finding 2: seed 2's refusal named [25.6, 2.2, 18.3], a point in empty space."""
+    part = coarse_partition(gamma_mesh, None, 2)
+    settings = DecomposeSettings(seed=2, root=root_region(part))
+    with pytest.raises(DecompositionError) as err:
+        decompose(gamma_mesh, settings, MACHINE, HEAD, None, np.eye(4))
+    assert on_surface(gamma_mesh, named_point(str(err.value))) < 0.1
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 5])
+def test_mushroom_is_refused_naming_the_overhang(seed):
+    """QA finding 1: seed 3 printed the cap's 655 mm² underside in the air."""
+    mesh = mushroom()
+    with pytest.raises(DecompositionError) as err:
+        decompose(mesh, DecomposeSettings(seed=seed), MACHINE, HEAD, None, np.eye(4))
+    message = str(err.value)
+    assert "\n" not in message
+    assert re.search(r"sub-part 0 overhangs 6[45]\d mm²", message), message
+    point = named_point(message)
+    assert on_surface(mesh, point) < 0.1
+    assert point[2] == pytest.approx(20.0, abs=0.1)  # the cap's underside
+
+
+# HEAD's results before the retries (sub-part volumes, mm³): the sample pipes pass first time
+KNOWN = {("pipe2", 0): [9523.72, 550.42], ("pipe2", 3): [9525.3, 548.83],
+         ("pipe3", 0): [10310.47, 459.43, 525.4], ("pipe3", 3): [10217.15, 641.69, 436.46],
+         ("cylinder", 0): [18836.1]}
+
+
+@pytest.mark.parametrize(("name", "seed"), sorted(KNOWN))
+def test_shared_models_pass_on_the_first_attempt_unchanged(name, seed):
+    from shared_models import MODELS
+
+    from slicer.mesh_io import load_mesh
+
+    mesh, placement = load_mesh(MODELS / f"{name}.stl")
+    dec = decompose(mesh, DecomposeSettings(seed=seed), MACHINE, HEAD, None, placement.matrix)
+    assert dec.seed == seed and len(dec.attempts) == 1
+    assert [s.volume for s in dec.subparts] == pytest.approx(KNOWN[name, seed], abs=0.01)
+    assert dec.overhang_area == pytest.approx(0.0, abs=0.1)
+    assert dec.to_json()["seed"] == seed
