@@ -109,7 +109,15 @@ def _summary(result: Any) -> dict[str, Any]:
             "transitions": len(result.transitions), "lines": len(result.lines),
             "filament_mm": float(est["filament_mm"]), "time_s": float(est["time_s"]),
             "replay": {k: v for k, v in result.replay.items()
-                       if isinstance(v, int | float)}}
+                       if isinstance(v, int | float)},
+            "merged_shells": int(result.merged_shells)}
+
+
+def sliced_reason(info: dict[str, Any]) -> str:
+    """The job's reason for READY after a slice: ``"sliced"``, and the shells merged."""
+    merged = int(info.get("merged_shells") or 0)
+    return (f"sliced; merged {merged} overlapping shells of the file into one solid" if merged
+            else "sliced")
 
 
 class SlicingWorker:

@@ -3,9 +3,13 @@
 :func:`load_mesh` reads ASCII or binary STL with trimesh, repairs what can be repaired (merged
 duplicate vertices, consistent outward winding, degenerate and duplicate faces dropped) and
 refuses what cannot be printed with a :class:`MeshError` whose ``str`` is one line naming the
-file. :func:`place_on_platform` finds the flat base and returns the part in the platform frame
-(z up, base on z = 0, base centroid on the C axis) together with the 4×4 placement matrix that
-every later output carries.
+file. Closed shells that overlap (solids exported into one file without a union, as CAD and
+Blender exports often are) become one solid by a manifold3d union (:func:`merge_shells`);
+shells that stay apart are refused. A part too thin to print that ×25.4 would fit the machine
+is refused with a hint that it was exported in inches (:func:`inch_hint`).
+:func:`place_on_platform` finds the flat base and returns the part in the platform frame (z up,
+base on z = 0, base centroid on the C axis) together with the 4×4 placement matrix that every
+later output carries.
 """
 
 from __future__ import annotations
@@ -13,18 +17,22 @@ from __future__ import annotations
 import re
 import struct
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+import manifold3d as m3
 import numpy as np
 import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from slicer.samples import to_manifold, to_trimesh
+
 #: Tolerances of this module (mm, or cosines of angles).
 PLANE_TOL = 1e-3  # distance of a face from its base plane, mm
 NORMAL_COS = np.cos(np.radians(1.0))  # a face "faces down" within 1°
 MIN_BASE_AREA = 1.0  # a flat base smaller than this (mm²) is no base
+INCH = 25.4  # mm
 
 _PARSE_ERRORS = (ValueError, TypeError, IndexError, KeyError, ImportError, UnicodeDecodeError,
                  struct.error)
@@ -46,16 +54,24 @@ class Placement:
         Area of the flat base, mm².
     base_normal : (3,) float
         Outward normal of the base in the input frame.
+    merged_shells : int
+        How many overlapping closed shells of the file were merged into the one solid (0 when
+        the file held one).
     """
 
     matrix: np.ndarray
     base_area: float
     base_normal: np.ndarray
+    merged_shells: int = 0
 
 
 def load_mesh(path: str | Path, build_volume: np.ndarray | None = None,
               min_size: float = 0.4) -> tuple[trimesh.Trimesh, Placement]:
     """Read, repair, validate and place an STL file.
+
+    Overlapping closed shells are merged into one solid (:func:`merge_shells`; how many is
+    ``placement.merged_shells``); a part too thin to print that looks exported in inches is
+    refused with that hint (:func:`inch_hint`).
 
     Parameters
     ----------
@@ -78,14 +94,14 @@ def load_mesh(path: str | Path, build_volume: np.ndarray | None = None,
         One line: ``"<file>: <reason>"``.
     """
     name = str(path)
-    mesh = repair(read_stl(path), name)
-    bodies = separate_bodies(mesh)
-    if bodies:
-        raise MeshError(f"{name}: {bodies}")
+    mesh, merged = merge_shells(repair(read_stl(path), name), name)
     check_size(mesh, name, None, min_size)
+    hint = inch_hint(mesh, build_volume, min_size)
+    if hint:
+        raise MeshError(f"{name}: {hint}")
     placed, placement = place_on_platform(mesh, name)
     check_size(placed, name, build_volume, min_size)
-    return placed, placement
+    return placed, replace(placement, merged_shells=merged)
 
 
 def read_stl(path: str | Path) -> trimesh.Trimesh:
@@ -290,6 +306,97 @@ def check_size(mesh: trimesh.Trimesh, name: str, build_volume: np.ndarray | None
 
 
 
+def merged_note(count: int) -> str:
+    """What a slice's summary says of ``count`` shells merged by :func:`merge_shells`."""
+    return f"merged {count} overlapping shells of the file into one solid"
+
+
+def _shell(mesh: trimesh.Trimesh, faces: np.ndarray) -> trimesh.Trimesh:
+    """The faces selected by ``faces``, (n,) bool, as a mesh of their own."""
+    shell = trimesh.Trimesh(mesh.vertices, mesh.faces[faces], process=False)
+    shell.remove_unreferenced_vertices()
+    return shell
+
+
+def inch_hint(mesh: trimesh.Trimesh, build_volume: np.ndarray | None,
+              min_size: float) -> str | None:
+    """Why a part that looks exported in inches cannot be printed, or None.
+
+    The slicer reads millimetres and has no scale option, so only a part that could not be
+    printed properly anyway is refused: one nowhere even half as thick as the nozzle (no ball
+    of that diameter fits in it, :func:`holds_ball`: no bead, no layer of its own height) that
+    ×25.4 would fit the build volume. Any other small part is left as it is.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Watertight.
+    build_volume : (3,) float, optional
+        Largest extents (x, y, z) the machine can hold, mm.
+    min_size : float
+        The nozzle diameter, mm.
+
+    Returns
+    -------
+    str or None
+        E.g. ``"too thin to print: the part is 1.72 × 1.26 × 2.36 mm and nowhere 0.2 mm thick
+        (half the 0.4 mm nozzle); was it exported in inches? ×25.4 it would be 43.6 × 32.0 ×
+        60.0 mm (STL files are read in millimetres)"``.
+    """
+    scaled = mesh.extents * INCH
+    if build_volume is not None and (scaled > np.asarray(build_volume, dtype=float)).any():
+        return None
+    if holds_ball(mesh, min_size / 2.0):
+        return None
+    dims = " × ".join(f"{x:.3g}" for x in mesh.extents)
+    inches = " × ".join(f"{x:.1f}" for x in scaled)
+    return (f"too thin to print: the part is {dims} mm and nowhere {min_size / 2.0:g} mm thick "
+            f"(half the {min_size:g} mm nozzle); was it exported in inches? ×25.4 it would be "
+            f"{inches} mm (STL files are read in millimetres)")
+
+
+def holds_ball(mesh: trimesh.Trimesh, diameter: float) -> bool:
+    """Whether a ball of ``diameter`` fits inside the part (give or take ``diameter`` / 16).
+
+    Horizontal sections (manifold3d) ``diameter / 8`` apart: a ball centred at one section's
+    height fits where every section it spans, shrunk by the ball's half-width at that height,
+    still overlaps. The middle heights are tried first. A mesh that manifold3d does not take
+    counts as holding one (nothing is concluded from it).
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Watertight.
+    diameter : float
+        mm.
+    """
+    solid = to_manifold(mesh)
+    if solid.status() != m3.Error.NoError or solid.is_empty():
+        return True
+    step = diameter / 8.0
+    radius = diameter / 2.0 - step / 2.0  # a ball between two sections holds this one on one
+    reach = np.arange(int(np.ceil(radius / step)))  # sections a ball spans on either side
+    shrink = np.sqrt(radius**2 - (reach * step) ** 2)
+    lo, hi = mesh.bounds[:, 2]
+    heights = np.arange(lo + step / 2.0, hi, step)
+    shrunk: dict[tuple[int, int], m3.CrossSection] = {}
+
+    def section(k: int, j: int) -> m3.CrossSection:
+        if (k, j) not in shrunk:
+            shrunk[k, j] = solid.slice(float(heights[k])).offset(-float(shrink[j]))
+        return shrunk[k, j]
+
+    middle_first = np.argsort(np.abs(heights - (lo + hi) / 2.0), kind="stable")
+    for k in middle_first[(middle_first >= reach[-1]) & (middle_first < len(heights) - reach[-1])]:
+        room = section(int(k), 0)
+        for j in reach[1:]:
+            if room.is_empty():
+                break
+            room = room ^ section(int(k - j), int(j)) ^ section(int(k + j), int(j))
+        if not room.is_empty():
+            return True
+    return False
+
 def _face_volumes(mesh: trimesh.Trimesh) -> np.ndarray:
     """Signed volume of the tetrahedron from the origin to every face, (n,) float."""
     tri = mesh.triangles
@@ -313,13 +420,15 @@ def body_labels(mesh: trimesh.Trimesh) -> np.ndarray:
     return rank[comp]
 
 
-def separate_bodies(mesh: trimesh.Trimesh) -> str | None:
+def separate_bodies(mesh: trimesh.Trimesh, labels: np.ndarray | None = None) -> str | None:
     """``None`` for one connected solid, else a phrase naming the smallest body and where.
+
+    ``labels`` are the mesh's :func:`body_labels`, (n,) int, when already known.
 
     Example: ``"the part is 2 separate bodies (the smallest, 1.24 mm³ near [9.6, 0.0, 23.6]
     mm, is not joined to the rest); one connected solid is needed"``.
     """
-    labels = body_labels(mesh)
+    labels = body_labels(mesh) if labels is None else labels
     count = int(labels.max()) + 1
     if count == 1:
         return None
@@ -333,6 +442,53 @@ def separate_bodies(mesh: trimesh.Trimesh) -> str | None:
     return (f"the part is {count} separate bodies (the smallest, {volume:.3g} mm³ near "
             f"[{_centre(mesh, small)}] mm, is not joined to the rest); one connected solid "
             "is needed")
+
+
+def merge_shells(mesh: trimesh.Trimesh, name: str = "<mesh>") -> tuple[trimesh.Trimesh, int]:
+    """One solid of a repaired mesh whose closed shells overlap (a manifold3d union).
+
+    Files often hold solids that intersect, simply concatenated; their union is the part. A
+    shell inside another is absorbed by it. Shells that stay apart after the union, and an
+    inward-facing shell (an internal cavity), are refused with :func:`separate_bodies`'s
+    reason.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Watertight with outward winding (:func:`repair`), n faces.
+    name : str
+        How errors name the file.
+
+    Returns
+    -------
+    mesh : trimesh.Trimesh
+        ``mesh`` itself when it is one body, else the union of its shells (repaired).
+    merged : int
+        How many shells were merged (0 when ``mesh`` is one body).
+
+    Raises
+    ------
+    MeshError
+        One line: ``"<file>: the part is 2 separate bodies ..."``, or an internal cavity.
+    """
+    labels = body_labels(mesh)
+    count = int(labels.max()) + 1
+    if count == 1:
+        return mesh, 0
+    refusal = MeshError(f"{name}: {separate_bodies(mesh, labels)}")
+    if (np.bincount(labels, weights=_face_volumes(mesh)) < 0).any():
+        raise refusal  # an internal cavity: no union would fill it
+    shells = [to_manifold(_shell(mesh, labels == i)) for i in range(count)]
+    if any(shell.status() != m3.Error.NoError for shell in shells):
+        raise refusal
+    union = repair(to_trimesh(m3.Manifold.batch_boolean(shells, m3.OpType.Add)), name)
+    left = body_labels(union)
+    if int(left.max()) + 1 == count:  # nothing overlapped: refused as the file's own bodies
+        raise refusal
+    rest = separate_bodies(union, left)
+    if rest:
+        raise MeshError(f"{name}: {rest}")
+    return union, count
 
 
 def _centre(mesh: trimesh.Trimesh, faces: np.ndarray) -> str:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, TypeVar
 
@@ -35,6 +35,7 @@ from slicer.settings import ProcessSettings
 
 if TYPE_CHECKING:
     from slicer.decompose import DecomposeSettings
+    from slicer.mesh_io import Placement
 
 T = TypeVar("T")
 
@@ -67,6 +68,11 @@ class SliceResult:
         Seconds per stage.
     seconds : float
         Wall time of the whole call.
+    plan : PrintPlan, optional
+        Kept for previews (``keep_plan``).
+    merged_shells : int
+        How many overlapping closed shells of the file were merged into one solid (0: the
+        file held one).
     """
 
     lines: list[str]
@@ -79,6 +85,7 @@ class SliceResult:
     timings: dict[str, float] = field(default_factory=dict)
     seconds: float = 0.0
     plan: PrintPlan | None = None
+    merged_shells: int = 0
 
     def summary(self) -> dict[str, object]:
         """The result without the G-code lines and the plan."""
@@ -89,15 +96,13 @@ class SliceResult:
 
 
 def _load(mesh_or_path: trimesh.Trimesh | str | Path, min_size: float,
-          build_volume: np.ndarray | None) -> tuple[trimesh.Trimesh, np.ndarray]:
-    """(placed mesh, placement matrix)."""
+          build_volume: np.ndarray | None) -> tuple[trimesh.Trimesh, Placement]:
+    """(placed mesh, placement)."""
     from slicer.mesh_io import load_mesh, place_on_platform, repair
 
     if isinstance(mesh_or_path, str | Path):
-        mesh, placement = load_mesh(mesh_or_path, build_volume, min_size)
-        return mesh, placement.matrix
-    mesh, placement = place_on_platform(repair(mesh_or_path))
-    return mesh, placement.matrix
+        return load_mesh(mesh_or_path, build_volume, min_size)
+    return place_on_platform(repair(mesh_or_path))
 
 
 def plan_model(mesh: trimesh.Trimesh, placement: np.ndarray, settings: ProcessSettings,
@@ -170,14 +175,15 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         # while the decomposition and the layers (mostly one thread) are computed
         index = early.submit(model_index, mesh, settings.line_width) if check else None
         t1 = time.perf_counter()
-        plan = plan_model(mesh, placement, settings, geometry, head, decompose_settings,
-                          planar, build_volume)
+        plan = plan_model(mesh, placement.matrix, settings, geometry, head,
+                          decompose_settings, planar, build_volume)
         timings["plan"] = time.perf_counter() - t1
         if index is not None:  # and its coverage grid while the G-code is written
             index = early.submit(_with_grid, index, settings)
         travel_ranges = tuple((float(lo), float(hi)) for lo, hi in np.reshape(travel, (3, 2)))
         setup = MachineSetup(geometry, head, platform_radius, travel_ranges)
-        return _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name)
+        result = _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name)
+        return replace(result, merged_shells=placement.merged_shells)
 
 
 def _name(mesh_or_path: trimesh.Trimesh | str | Path) -> str:

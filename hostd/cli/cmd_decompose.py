@@ -66,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         decompose,
         write_decomposition,
     )
-    from slicer.mesh_io import MeshError, load_mesh
+    from slicer.mesh_io import MeshError, load_mesh, merged_note
     from slicer.printhead import Printhead, PrintheadError
 
     try:
@@ -100,6 +100,8 @@ def run(args: argparse.Namespace) -> int:
             render_preview(dec, out / "preview.png")
     except OSError as exc:
         raise CliError(f"{out}: cannot write: {exc.strerror or exc}") from None
+    if placement.merged_shells:
+        print(merged_note(placement.merged_shells))
     _table(dec, time.perf_counter() - t0)
     return 0
 

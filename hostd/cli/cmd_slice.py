@@ -110,9 +110,13 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _summary(r: Any, out: Path, seconds: float) -> None:
+    from slicer.mesh_io import merged_note
+
     est, rep = r.estimate, r.replay
     lo, hi = r.thickness
     print(f"wrote {out}: {len(r.lines)} lines")
+    if r.merged_shells:
+        print(merged_note(r.merged_shells))
     turned = _turned_degrees(r.lines)
     if turned > 0.5:
         print(f"placed turned {turned:.0f}° from the file's orientation: the part's own "

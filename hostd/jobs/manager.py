@@ -28,7 +28,7 @@ from hostd.printer.errors import PrinterError
 from hostd.printer.modal import ModalState
 from hostd.printer.program import Program, Transition
 from hostd.printer.streamer import Hooks, Port, Streamer, StreamSettings
-from hostd.slicing_worker import SliceError, SlicingWorker
+from hostd.slicing_worker import SliceError, SlicingWorker, sliced_reason
 
 log = logging.getLogger(__name__)
 _TROUBLE = (JobState.FAILED, JobState.INTERRUPTED)  # logged as warnings: the operator acts
@@ -360,7 +360,7 @@ class JobManager:
                 "layers": summary.layers, "transitions": summary.transitions}
         self.store.update(job.id, gcode_sha=sha, total_lines=summary.total,
                           estimate=summary.estimate, info=info)
-        self._set_state(job.id, JobState.READY, "sliced")
+        self._set_state(job.id, JobState.READY, sliced_reason(outcome.info))
         self._wake_print.set()
 
     # -- printing --------------------------------------------------------------------------

@@ -79,3 +79,17 @@ def test_a_part_turned_to_stand_says_so(tmp_path, capsys):
     cylinder(radius=6.0, height=12.0).export(upright)
     assert main(["slice", str(upright), "-o", str(out), "--layer-height", "0.3"]) == 0
     assert "placed turned" not in capsys.readouterr().out
+
+
+def test_overlapping_shells_slice_as_one_solid_and_say_so(tmp_path, capsys):
+    import trimesh
+
+    cube = trimesh.creation.box([20.0, 20.0, 20.0])
+    post = trimesh.creation.box([10.0, 10.0, 30.0])
+    post.apply_translation([5.0, 0.0, 5.0])  # through the cube's +x half, 10 mm above it
+    model, out = tmp_path / "overlap.stl", tmp_path / "overlap.gcode"
+    trimesh.util.concatenate([cube, post]).export(model)
+    assert main(["slice", str(model), "-o", str(out), "--layer-height", "0.3"]) == 0
+    text = capsys.readouterr().out
+    assert "merged 2 overlapping shells of the file into one solid" in text
+    assert "collisions 0" in text and out.stat().st_size > 0

@@ -141,3 +141,29 @@ async def test_cancelling_a_job_while_it_slices_stops_the_slice(daemon_factory):
     assert len(cache) == 2 and all(small["upload_sha"] in n for n in cache), cache
     assert await d.stop() == 0
     assert d.loop_errors() == []
+
+
+async def test_overlapping_shells_pass_the_upload_check_and_are_sliced_as_one(daemon_factory):
+    """Two solids concatenated without a union (as CAD exports write them): the upload is
+    taken, the slicer merges them, and the job's reason and record say so."""
+    import trimesh
+
+    d = daemon_factory(process__layer_height=0.3)
+    await d.start()
+    cube = trimesh.creation.box([8.0, 8.0, 3.0])
+    post = trimesh.creation.box([4.0, 4.0, 5.0])
+    post.apply_translation([2.0, 0.0, 1.0])  # through the cube's +x half, 2 mm above it
+    async with asyncio.timeout(240):
+        c = await d.rpc()
+        await c.call("events.subscribe", events=["job.state"])
+        job = await c.call("job.submit", name="overlap.stl",
+                           data=_stl(trimesh.util.concatenate([cube, post])), encoding="base64")
+        ready = await c.until_state(job["id"], "ready", "failed")
+        assert ready["reason"] == ("sliced; merged 2 overlapping shells of the file into one "
+                                   "solid"), ready
+        await c.until_state(job["id"], "completed", "failed")
+        got = await c.call("job.get", id=job["id"])
+        await c.close()
+    assert got["state"] == "completed", got
+    assert got["info"]["merged_shells"] == 2
+    assert await d.stop() == 0

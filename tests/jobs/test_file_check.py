@@ -123,3 +123,22 @@ async def test_a_worker_that_dies_fails_its_check_and_is_replaced(tmp_path: Path
         checker.close()
     assert again.total == 2
     assert checker.status()["refused"] == 1
+
+
+@pytest.mark.parametrize("file_type", ["stl", "stl_ascii"])
+def test_the_upload_check_and_the_slicer_both_take_overlapping_shells(tmp_path: Path,
+                                                                      file_type: str):
+    """Solids concatenated without a union: the upload-time check does not refuse them before
+    the slicer sees them, and the slicer takes them (as their union)."""
+    import trimesh
+
+    from slicer.mesh_io import load_mesh
+
+    cube = trimesh.creation.box([20.0, 20.0, 20.0])
+    post = trimesh.creation.box([10.0, 10.0, 30.0])
+    post.apply_translation([5.0, 0.0, 5.0])
+    path = tmp_path / "overlap.stl"
+    trimesh.util.concatenate([cube, post]).export(path, file_type=file_type)
+    assert file_check.check_file(str(path), "stl", "overlap.stl") is None
+    mesh, placement = load_mesh(path)
+    assert placement.merged_shells == 2 and mesh.volume == pytest.approx(9000.0)

@@ -3,6 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from shared_models import MODELS
 
 from slicer import samples
 from slicer.mesh_io import MeshError, load_mesh
@@ -200,3 +201,99 @@ def test_a_part_too_small_to_stand_says_its_size(tmp_path):
     trimesh.creation.box([0.5, 0.5, 0.5]).export(path)
     msg = _refused(path)
     assert "no flat base of 1 mm² to stand on" in msg and "the part is 0.5 × 0.5 × 0.5 mm" in msg
+
+
+def _boxes(*boxes: tuple[tuple[float, float, float], tuple[float, float, float]]
+           ) -> trimesh.Trimesh:
+    """Boxes of (extents, centre), concatenated without a union (as exporters write them)."""
+    meshes = []
+    for extents, centre in boxes:
+        box = trimesh.creation.box(extents)
+        box.apply_translation(centre)
+        meshes.append(box)
+    return trimesh.util.concatenate(meshes)
+
+
+#: A 20 mm cube on z = 0 and a 10 × 10 × 30 mm post through its +x half: the post's bottom and
+#: +x side lie in the cube's faces; they share 10 × 10 × 20 mm.
+CUBE = ((20.0, 20.0, 20.0), (0.0, 0.0, 10.0))
+POST = ((10.0, 10.0, 30.0), (5.0, 0.0, 15.0))
+UNION_VOLUME = 20.0**3 + 10.0 * 10.0 * 30.0 - 10.0 * 10.0 * 20.0
+
+
+@pytest.mark.parametrize("file_type", ["stl", "stl_ascii"])
+def test_overlapping_shells_load_as_their_union(tmp_path, file_type):
+    path = tmp_path / "overlap.stl"
+    _boxes(CUBE, POST).export(path, file_type=file_type)
+    mesh, placement = load_mesh(path)
+    assert placement.merged_shells == 2
+    assert mesh.is_watertight and mesh.body_count == 1
+    assert mesh.volume == pytest.approx(UNION_VOLUME, rel=1e-9)
+    assert mesh.extents == pytest.approx([20.0, 20.0, 30.0])
+    assert placement.base_area == pytest.approx(400.0)
+
+
+def test_a_shell_inside_another_is_absorbed(tmp_path):
+    path = tmp_path / "nested.stl"
+    _boxes(((30.0, 30.0, 30.0), (0.0, 0.0, 15.0)), ((10.0, 10.0, 10.0), (2.0, 3.0, 15.0))
+           ).export(path)
+    mesh, placement = load_mesh(path)
+    assert placement.merged_shells == 2
+    assert mesh.volume == pytest.approx(30.0**3, rel=1e-9)
+    assert mesh.extents == pytest.approx([30.0, 30.0, 30.0])
+    assert len(mesh.faces) == 12  # the outer box's own triangles: the inner one is gone
+
+
+def test_shells_that_stay_apart_are_refused_as_separate_bodies(tmp_path):
+    apart = ((4.0, 4.0, 4.0), (32.0, 2.0, 2.0))
+    two, three = tmp_path / "two.stl", tmp_path / "three.stl"
+    _boxes(CUBE, apart).export(two)
+    _boxes(CUBE, POST, apart).export(three)
+    assert ("the part is 2 separate bodies (the smallest, 64 mm³ near [32.0, 2.0, 2.0] mm, is "
+            "not joined to the rest); one connected solid is needed") in _refused(two)
+    # the cube and the post merge; the small box is still not joined to them
+    msg = _refused(three)
+    assert "the part is 2 separate bodies (the smallest, 64 mm³ near [32.0, 2.0, 2.0] mm" in msg
+
+
+def test_an_inward_shell_inside_another_is_still_a_cavity(tmp_path):
+    outer = trimesh.creation.box([30.0, 30.0, 30.0])
+    inner = trimesh.creation.box([10.0, 10.0, 10.0])
+    inner.invert()
+    path = tmp_path / "cavity.stl"
+    trimesh.util.concatenate([outer, inner]).export(path)
+    assert "internal cavity (1e+03 mm³ near [0.0, 0.0, 0.0] mm)" in _refused(path)
+
+
+BUILD_VOLUME = np.array([500.0, 500.0, 700.0])  # the default machine's travel
+
+
+def test_pipe2_exported_in_inches_is_refused_with_the_hint(tmp_path):
+    mesh = trimesh.load_mesh(MODELS / "pipe2.stl")
+    mesh.apply_scale(1.0 / 25.4)
+    path = tmp_path / "pipe2_inch.stl"
+    mesh.export(path)
+    msg = _refused(path, build_volume=BUILD_VOLUME, min_size=0.4)
+    assert msg == (f"{path}: too thin to print: the part is 1.72 × 1.26 × 2.36 mm and nowhere "
+                   "0.2 mm thick (half the 0.4 mm nozzle); was it exported in inches? ×25.4 it "
+                   "would be 43.6 × 32.0 × 60.0 mm (STL files are read in millimetres)")
+
+
+@pytest.mark.parametrize("thickness", [0.15, 0.35])
+def test_the_inch_hint_needs_a_part_thinner_than_half_the_nozzle(tmp_path, thickness):
+    plate = tmp_path / "plate.stl"
+    trimesh.creation.box([5.0, 5.0, thickness]).export(plate)
+    if thickness < 0.2:
+        assert "exported in inches" in _refused(plate, build_volume=BUILD_VOLUME)
+    else:
+        load_mesh(plate, build_volume=BUILD_VOLUME)
+    # ×25.4 too big for the machine: no hint, whatever the thickness
+    placed, _ = load_mesh(plate, build_volume=BUILD_VOLUME / 30.0)
+    assert placed.extents[2] == pytest.approx(thickness)
+
+
+def test_a_2mm_cube_gets_no_inch_hint(tmp_path):
+    path = tmp_path / "cube.stl"
+    trimesh.creation.box([2.0, 2.0, 2.0]).export(path)
+    mesh, _ = load_mesh(path, build_volume=BUILD_VOLUME)
+    assert mesh.volume == pytest.approx(8.0)
