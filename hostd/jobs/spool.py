@@ -189,9 +189,10 @@ def check_stl(data: bytes, name: str) -> None:
     count = int.from_bytes(data[80:84], "little")
     if count == 0:
         raise SpoolError(f"{name}: STL has no triangles")
-    if len(data) != 84 + 50 * count:
+    if len(data) < 84 + 50 * count:  # longer is padding, dropped by the slicer as well
         raise SpoolError(f"{name}: corrupt binary STL: {count} triangles need "
-                         f"{84 + 50 * count} bytes, got {len(data)}")
+                         f"{84 + 50 * count} bytes, the file has only {len(data)} "
+                         "(truncated?)")
     _check_finite(data, count, name)
 
 

@@ -78,7 +78,8 @@ async def test_the_worker_summarizes_as_a_parse_here_would(tmp_path: Path,
     ("gcode", b"\xff\xfe\x00binary", "not UTF-8"),
     ("gcode", b"G1 X1\n\0G1 X2\n", "NUL"),
     ("gcode", b"; only a comment\n\n", "no commands"),
-    ("stl", binary_stl(2, b"\0" * 7), "corrupt binary STL"),
+    ("stl", binary_stl(2)[:-7], "corrupt binary STL: 2 triangles need 184 bytes, the file "
+     r"has only 177 \(truncated\?\)"),
     ("stl", b"solid x\nfacet normal 0 0 1\n", "truncated"),
     ("stl", nan_stl(3, 2), r"1 triangle corners have NaN or infinite coordinates \(the "
      r"first in triangle 2\)"),
@@ -142,3 +143,26 @@ def test_the_upload_check_and_the_slicer_both_take_overlapping_shells(tmp_path: 
     assert file_check.check_file(str(path), "stl", "overlap.stl") is None
     mesh, placement = load_mesh(path)
     assert placement.merged_shells == 2 and mesh.volume == pytest.approx(9000.0)
+
+
+@pytest.mark.parametrize("tail", [b"\0\0padding", -7])
+def test_the_upload_check_and_the_slicer_agree_on_a_binary_stl_of_another_length(
+        tmp_path: Path, tail: bytes | int):
+    """Bytes past the declared triangles (some exporters pad) are taken by both; a file
+    shorter than its count says is refused by both."""
+    import trimesh
+
+    from slicer.mesh_io import MeshError, load_mesh
+
+    path = tmp_path / "box.stl"
+    trimesh.creation.box([20.0, 20.0, 20.0]).export(path, file_type="stl")
+    data = path.read_bytes()
+    path.write_bytes(data + tail if isinstance(tail, bytes) else data[:tail])
+    if isinstance(tail, bytes):
+        assert file_check.check_file(str(path), "stl", "box.stl") is None
+        assert load_mesh(path)[0].volume == pytest.approx(8000.0)
+    else:
+        with pytest.raises(SpoolError, match="box.stl: corrupt binary STL"):
+            file_check.check_file(str(path), "stl", "box.stl")
+        with pytest.raises(MeshError, match="truncated binary STL"):
+            load_mesh(path)
