@@ -51,6 +51,7 @@ from slicer.replay_samples import (
 )
 from slicer.replay_stages import Stages
 from slicer.replay_support import WALL_SLACK, bad_wall_layers, bridged, strict_support
+from slicer.settings import MAX_BEAD_SHARE
 
 INSIDE_SLACK = 0.1  # × line width
 JUDGE_STRIDE = 2  # inside, support and walls are judged on every second deposited sample
@@ -285,14 +286,48 @@ def check_budget(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray],
                  line_width: float, budget: float, index_bytes: int = 0) -> None:
     """Raise :class:`ReplayBudgetError` when :func:`memory_estimate` plus ``index_bytes``
     (a prebuilt model index) exceeds ``budget`` bytes (the check holds every deposited
-    sample at once)."""
+    sample at once). The message says what would fit (:func:`budget_advice`)."""
     n, need = memory_estimate(parsed, lengths, line_width)
-    need += index_bytes
-    if need > budget:
+    if need + index_bytes > budget:
+        proc = parsed.headers.get("PROCESS", {})
+        advice = budget_advice(need, budget - index_bytes, _number(proc, "layer_height"),
+                               _number(proc, "nozzle_diameter"))
         raise ReplayBudgetError(
             f"too large to replay-check: {n / 1e6:.1f} M bead samples would need about "
-            f"{need / 2**30:.1f} GiB, above the check's budget of {budget / 2**30:.1f} GiB "
-            f"(a smaller part, or a larger layer height, fits)")
+            f"{(need + index_bytes) / 2**30:.1f} GiB, above the check's budget of "
+            f"{budget / 2**30:.1f} GiB ({advice})")
+
+
+def budget_advice(need: float, room: float, layer_height: float | None,
+                  nozzle_diameter: float | None) -> str:
+    """What fits the replay's memory budget when the samples need ``need`` bytes and have
+    ``room``: the samples, the head's and the moves scale with the number of layers, so a
+    layer height of ``layer_height · need / room`` would, if the nozzle allows it (at most
+    :data:`~slicer.settings.MAX_BEAD_SHARE` × ``nozzle_diameter``); else only a smaller part.
+    Unknown heights (a file without them) give the general advice."""
+    if layer_height is None or nozzle_diameter is None:
+        return "a smaller part, or a larger layer height, fits"
+    largest = MAX_BEAD_SHARE * nozzle_diameter
+    fits = layer_height * need / room if room > 0 else math.inf
+    if layer_height >= largest - 1e-9:
+        return (f"the layer height {layer_height:g} mm is already the largest the "
+                f"{nozzle_diameter:g} mm nozzle takes: the part is too large for the "
+                f"check's memory budget; only a smaller part fits")
+    if fits > largest + 1e-9:
+        return (f"even the largest layer height the {nozzle_diameter:g} mm nozzle takes, "
+                f"{largest:g} mm, would not fit: the part is too large for the check's "
+                f"memory budget; only a smaller part fits")
+    return (f"a layer height of about {math.ceil(fits * 100 - 1e-6) / 100:g} mm or more "
+            f"(process.layer_height, at most {largest:g} mm) fits, or a smaller part")
+
+
+def _number(values: dict[str, Any], key: str) -> float | None:
+    """``values[key]`` as a positive finite float, or ``None``."""
+    try:
+        v = float(values[key])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) and v > 0 else None
 
 
 def _wall(model: ModelIndex, points: np.ndarray, line_width: float
