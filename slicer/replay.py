@@ -50,7 +50,14 @@ from slicer.replay_samples import (
     sample_count,
 )
 from slicer.replay_stages import Stages
-from slicer.replay_support import WALL_SLACK, bad_wall_layers, bridged, strict_support
+from slicer.replay_support import (
+    WALL_SLACK,
+    LayerSupport,
+    bad_wall_layers,
+    bridged,
+    layer_support,
+    strict_support,
+)
 from slicer.settings import MAX_BEAD_SHARE
 
 INSIDE_SLACK = 0.1  # × line width
@@ -87,14 +94,21 @@ class ReplayReport:
     unsupported_wall_layers: list[str]
     collisions: int
     collision_messages: list[str]
+    # per layer, the unsupported share of its extrusion by length and the longest unsupported
+    # run (mm) of the layer nearest the refusal zone (:func:`layer_text`), and the layers in
+    # it (over both OVERHANG_SHARE and OVERHANG_RUN: printed in the air), worst first
+    worst_layer_unsupported: float = 0.0
+    worst_layer_run_mm: float = 0.0
+    worst_layer: dict[str, Any] | None = None
+    overhang_layers: list[dict[str, Any]] = field(default_factory=list)
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
     cpu_timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
-        """Whether the file may be emitted (no collisions)."""
-        return self.collisions == 0
+        """Whether the file may be emitted (no collisions, no layer printed in the air)."""
+        return self.collisions == 0 and not self.overhang_layers
 
     def to_dict(self) -> dict[str, object]:
         """The report as a plain dict."""
@@ -106,8 +120,8 @@ class ReplayReport:
                 f"(shell {100 * self.shell_coverage:.2f}%), supported "
                 f"{100 * self.supported:.2f}% (bridging {100 * self.bridged:.2f}%), walls "
                 f"supported {100 * self.wall_supported:.2f}% with "
-                f"{len(self.unsupported_wall_layers)} unsupported wall layers, "
-                f"{self.collisions} collisions")
+                f"{len(self.unsupported_wall_layers)} unsupported wall layers, worst layer "
+                f"{worst_layer_text(self.worst_layer)}, {self.collisions} collisions")
 
 
 def _process(parsed: ParsedGcode) -> dict[str, float]:
@@ -231,6 +245,10 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         inside_share = inside_f.result()
     bad_layers = [_layer_name(s, k) for k in bad_wall_layers(s.seq[::JUDGE_STRIDE], wall, ok)]
     n = max(len(ok), 1)
+    per_layer = layer_support(s, judged_samples(len(s)), ok | bridge, w)
+    to_part = np.linalg.inv(_placement(parsed)) if "PLACEMENT" in parsed.headers else None
+    worst = per_layer.worst()
+    worst_d = None if worst is None else _layer_dict(per_layer, worst, to_part)
     return ReplayReport(
         moves=len(parsed), extruding_moves=n_beads, deposited_mm=deposited,
         points=len(s), inside=inside_share, coverage=cov, shell_coverage=shell_cov,
@@ -239,6 +257,11 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         wall_supported=float(ok[wall].mean()) if wall.any() else 1.0,
         unsupported_wall_layers=bad_layers, collisions=n_hit,
         collision_messages=[r.message() for r in reports],
+        worst_layer_unsupported=0.0 if worst_d is None else worst_d["share"],
+        worst_layer_run_mm=0.0 if worst_d is None else worst_d["run_mm"],
+        worst_layer=worst_d,
+        overhang_layers=[_layer_dict(per_layer, int(i), to_part)
+                         for i in per_layer.overhangs()],
         seconds=time.perf_counter() - t0, timings=st.wall, cpu_timings=st.cpu)
 
 
@@ -390,6 +413,44 @@ def _inside_share(model: ModelIndex, points: np.ndarray, bound: np.ndarray, slac
     out = np.flatnonzero(~ok)
     ok[out] = np.isfinite(model.distance(points[out], slack, bound[out]))
     return float(np.mean(ok))
+
+
+def _layer_dict(layers: LayerSupport, row: int, to_part: np.ndarray | None
+                ) -> dict[str, Any]:
+    """Row ``row`` of ``layers`` as plain data; its point moved into the part's (STL) frame
+    by ``to_part`` (4, 4; the inverse placement, ``None``: left in the platform frame)."""
+    where = layers.where[row]
+    if to_part is not None:
+        where = to_part[:3, :3] @ where + to_part[:3, 3]
+    return {"subpart": int(layers.subpart[row]), "layer": int(layers.layer[row]),
+            "z": round(float(layers.z[row]), 3),
+            "extruded_mm": round(float(layers.length[row]), 2),
+            "unsupported_mm": round(float(layers.unsupported[row]), 2),
+            "share": round(float(layers.share[row]), 4),
+            "run_mm": round(float(layers.run[row]), 2),
+            "point": None if not np.isfinite(where).all() else [
+                round(float(v), 2) for v in where]}
+
+
+def worst_layer_text(layer: dict[str, Any] | None) -> str:
+    """A layer of :class:`ReplayReport` (``worst_layer``, ``overhang_layers``) in a few
+    words: where, the unsupported share of its extrusion and the longest unsupported run."""
+    if layer is None:
+        return "none"
+    return (f"sub-part {layer['subpart']} layer {layer['layer']} (z {layer['z']:.2f} mm) "
+            f"{100 * layer['share']:.1f}% of {layer['extruded_mm']:.0f} mm unsupported, "
+            f"longest run {layer['run_mm']:.1f} mm")
+
+
+def overhang_text(layer: dict[str, Any]) -> str:
+    """One clause naming a layer printed in the air and a point of it in the part frame."""
+    point = layer["point"]
+    at = "" if point is None else (
+        f" around [{point[0]:.1f}, {point[1]:.1f}, {point[2]:.1f}] mm (part frame)")
+    return (f"sub-part {layer['subpart']} layer {layer['layer']} (z {layer['z']:.2f} mm) "
+            f"prints {100 * layer['share']:.1f}% of its {layer['extruded_mm']:.0f} mm of "
+            f"extrusion over nothing ({layer['unsupported_mm']:.0f} mm unsupported, a run "
+            f"of {layer['run_mm']:.0f} mm{at})")
 
 
 def _layer_name(s: Samples, seq: int) -> str:
