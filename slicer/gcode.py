@@ -99,6 +99,42 @@ def path_extrusion(path: Path, area: float) -> tuple[np.ndarray, np.ndarray]:
     return ext.points, ext.e[1:]
 
 
+def printed_moves(start: np.ndarray, poses: np.ndarray, e: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The extruding moves of one path as written: a move whose printed pose (X Y Z to
+    ``XYZ_DECIMALS``, A C to ``AC_DECIMALS``) is the one before's would be a bare
+    ``G1 E..`` line at a standstill, so it is dropped and its filament goes to the next
+    move written (the last ones' to the last move written): the total is the same.
+
+    Parameters
+    ----------
+    start : (5,) float
+        Pose before the path.
+    poses : (k, 5) float
+        End pose of each move.
+    e : (k,) float
+        Filament of each move, mm.
+
+    Returns
+    -------
+    poses : (j, 5) float
+    e : (j,) float
+        The moves kept (j ≤ k; one at least when k > 0, even if it does not move).
+    """
+    if len(poses) == 0:
+        return poses, e
+    r = np.empty((len(poses) + 1, 5))
+    r[0], r[1:] = start, poses
+    r[:, :3] = np.round(r[:, :3], XYZ_DECIMALS)
+    r[:, 3:] = np.round(r[:, 3:], AC_DECIMALS)
+    moved = (r[1:] != r[:-1]).any(axis=1)
+    moved[-1] |= not moved.any()  # a path that never moves keeps its last move
+    kept = np.flatnonzero(moved)
+    # every move's filament to the first kept move at or after it, the tail's to the last
+    owner = np.minimum(np.searchsorted(kept, np.arange(len(poses))), len(kept) - 1)
+    return poses[kept], np.bincount(owner, weights=e, minlength=len(kept))
+
+
 class _Writer:
     """Walks the plan in order and fills a :class:`Program`."""
 
@@ -180,7 +216,8 @@ class _Writer:
             if not _same_angles(self.prog.pose, layer.a, layer.c):
                 self.reorient(layer, ext.points[s])
             self.travel_to(self.poses[s, :3])
-            self.prog.moves(self.poses[s + 1:t], ext.e[s + 1:t], path.speed, 1)
+            poses, e = printed_moves(self.prog.pose, self.poses[s + 1:t], ext.e[s + 1:t])
+            self.prog.moves(poses, e, path.speed, 1)
 
     # -- sub-parts -------------------------------------------------------------------------
     def subpart(self, sp: SubpartPlan, prev: int | None) -> None:

@@ -2,7 +2,8 @@
 
 Used by ``hostctl slice`` and the daemon's slicing worker: a plain function with a plain-data,
 picklable result. A file whose replay finds a head collision is refused
-(:class:`CollisionError`), never returned; so is a part wider than the platform, a program
+(:class:`CollisionError`), never returned, and so is one with a layer printed in the air
+(:class:`OverhangError`); so is a part wider than the platform, a program
 that prints nothing or moves an axis beyond its travel (:class:`~slicer.envelope.EnvelopeError`,
 a :class:`~slicer.mesh_io.MeshError`: bad input), checked by :mod:`slicer.envelope`.
 """
@@ -28,7 +29,7 @@ from slicer.gcode_reader import parse_words
 from slicer.hugepages import small_pages
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
-from slicer.replay import model_index, replay_check
+from slicer.replay import model_index, overhang_text, replay_check
 from slicer.replay_coverage import shell_depth, shell_grid
 from slicer.replay_geometry import ModelIndex
 from slicer.settings import ProcessSettings
@@ -46,6 +47,12 @@ class SliceError(ValueError):
 
 class CollisionError(SliceError):
     """The replay found head collisions: the file is refused."""
+
+
+class OverhangError(SliceError):
+    """The replay found a layer printed in the air (over both of
+    :data:`~slicer.replay_support.OVERHANG_SHARE` and ``OVERHANG_RUN``): the file is
+    refused."""
 
 
 @dataclass
@@ -148,7 +155,7 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
     planar : bool
         The 3-axis control: one sub-part, horizontal layers, A = C = 0.
     check : bool
-        Run the replay check (and refuse collisions).
+        Run the replay check (and refuse collisions and layers printed in the air).
     keep_plan : bool
         Keep the PrintPlan in the result (for previews).
     travel : (3, 2) float
@@ -156,7 +163,7 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
 
     Raises
     ------
-    SliceError, CollisionError
+    SliceError, CollisionError, OverhangError
         And the loaders' MeshError / DecompositionError / SlicingError, all one line.
     slicer.envelope.EnvelopeError
         (a MeshError) The part is wider than the platform, nothing is printed, or a move
@@ -182,7 +189,9 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
             index = early.submit(_with_grid, index, settings)
         travel_ranges = tuple((float(lo), float(hi)) for lo, hi in np.reshape(travel, (3, 2)))
         setup = MachineSetup(geometry, head, platform_radius, travel_ranges)
-        result = _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name)
+        seed = None if planar else (decompose_settings.seed if decompose_settings else 0)
+        result = _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name,
+                         seed)
         return replace(result, merged_shells=placement.merged_shells)
 
 
@@ -236,8 +245,12 @@ def _with_grid(index: Future[ModelIndex], settings: ProcessSettings) -> ModelInd
 
 def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
             setup: MachineSetup, index: Future[ModelIndex] | None, timings: dict[str, float],
-            t0: float, keep_plan: bool, name: str = "<mesh>") -> SliceResult:
+            t0: float, keep_plan: bool, name: str = "<mesh>", seed: int | None = None
+            ) -> SliceResult:
     """G-code for ``plan``, its envelope check and, when ``index`` is given, its replay check.
+
+    ``seed`` is the decomposition's (``None`` for the planar control), for the advice of an
+    :class:`OverhangError`.
 
     The replay reads the program's numbers, so the estimate and the text are computed on a
     thread of their own meanwhile (mostly numpy: the replay loses little of the GIL to it).
@@ -252,7 +265,7 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
     else:
         with ThreadPoolExecutor(1, "gcode-text") as writer:
             text = writer.submit(_timed, moves.finish, timings, "text")
-            report = _replayed(moves, mesh, setup, index, timings)
+            report = _replayed(moves, mesh, setup, index, timings, seed)
             res = text.result()
     return SliceResult(res.lines, len(plan.subparts),
                        sum(len(sp.layers) for sp in plan.subparts), _thickness(plan),
@@ -271,13 +284,34 @@ def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:
 
 
 def _replayed(moves: Draft, mesh: trimesh.Trimesh, setup: MachineSetup,
-              index: Future[ModelIndex], timings: dict[str, float]) -> dict[str, object]:
-    """The replay report of ``moves``; raises :class:`CollisionError` if the head hits."""
+              index: Future[ModelIndex], timings: dict[str, float], seed: int | None = None
+              ) -> dict[str, object]:
+    """The replay report of ``moves``; raises :class:`CollisionError` if the head hits,
+    :class:`OverhangError` if a layer prints in the air (advice for decomposition ``seed``,
+    ``None``: the planar control)."""
     parsed = _timed(lambda: parse_words(moves.words()), timings, "read")
     rep = _timed(lambda: replay_check(parsed, mesh, setup.head, setup.platform_radius,
                                       placed=True, index=index.result()), timings, "replay")
     if not rep.ok:
         first = rep.collision_messages[0] if rep.collision_messages else ""
-        raise CollisionError(f"replay found {rep.collisions} head collision(s); refusing "
-                             f"to write the file: {first}")
+        if rep.collisions:
+            raise CollisionError(f"replay found {rep.collisions} head collision(s); "
+                                 f"refusing to write the file: {first}")
+        raise OverhangError(overhang_message(rep.overhang_layers, seed))
     return rep.to_dict()
+
+
+def overhang_message(layers: list[dict[str, object]], seed: int | None) -> str:
+    """One line for a replay's ``overhang_layers`` (worst first, at least one): the worst
+    layer, how many more, and what to try (another decomposition seed; for the planar
+    control (``seed`` None), the five-axis slice)."""
+    worst = layers[0]
+    more = f" (and {len(layers) - 1} more layers)" if len(layers) > 1 else ""
+    if seed is None:
+        advice = ("the planar control cannot print this overhang without support; slice it "
+                  "five-axis (without --planar)")
+    else:
+        advice = (f"the decomposition left an overhang in sub-part {worst['subpart']}; try "
+                  f"decompose.seed {seed + 1} (or another seed), or set decompose.parts")
+    return (f"replay found a layer printed in the air; refusing to write the file: "
+            f"{overhang_text(worst)}{more}; {advice}")

@@ -50,7 +50,15 @@ from slicer.replay_samples import (
     sample_count,
 )
 from slicer.replay_stages import Stages
-from slicer.replay_support import WALL_SLACK, bad_wall_layers, bridged, strict_support
+from slicer.replay_support import (
+    WALL_SLACK,
+    LayerSupport,
+    bad_wall_layers,
+    bridged,
+    layer_support,
+    strict_support,
+)
+from slicer.settings import MAX_BEAD_SHARE
 
 INSIDE_SLACK = 0.1  # × line width
 JUDGE_STRIDE = 2  # inside, support and walls are judged on every second deposited sample
@@ -86,14 +94,21 @@ class ReplayReport:
     unsupported_wall_layers: list[str]
     collisions: int
     collision_messages: list[str]
+    # per layer, the unsupported share of its extrusion by length and the longest unsupported
+    # run (mm) of the layer nearest the refusal zone (:func:`layer_text`), and the layers in
+    # it (over both OVERHANG_SHARE and OVERHANG_RUN: printed in the air), worst first
+    worst_layer_unsupported: float = 0.0
+    worst_layer_run_mm: float = 0.0
+    worst_layer: dict[str, Any] | None = None
+    overhang_layers: list[dict[str, Any]] = field(default_factory=list)
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
     cpu_timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
-        """Whether the file may be emitted (no collisions)."""
-        return self.collisions == 0
+        """Whether the file may be emitted (no collisions, no layer printed in the air)."""
+        return self.collisions == 0 and not self.overhang_layers
 
     def to_dict(self) -> dict[str, object]:
         """The report as a plain dict."""
@@ -105,8 +120,8 @@ class ReplayReport:
                 f"(shell {100 * self.shell_coverage:.2f}%), supported "
                 f"{100 * self.supported:.2f}% (bridging {100 * self.bridged:.2f}%), walls "
                 f"supported {100 * self.wall_supported:.2f}% with "
-                f"{len(self.unsupported_wall_layers)} unsupported wall layers, "
-                f"{self.collisions} collisions")
+                f"{len(self.unsupported_wall_layers)} unsupported wall layers, worst layer "
+                f"{worst_layer_text(self.worst_layer)}, {self.collisions} collisions")
 
 
 def _process(parsed: ParsedGcode) -> dict[str, float]:
@@ -230,6 +245,10 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         inside_share = inside_f.result()
     bad_layers = [_layer_name(s, k) for k in bad_wall_layers(s.seq[::JUDGE_STRIDE], wall, ok)]
     n = max(len(ok), 1)
+    per_layer = layer_support(s, judged_samples(len(s)), ok | bridge, w)
+    to_part = np.linalg.inv(_placement(parsed)) if "PLACEMENT" in parsed.headers else None
+    worst = per_layer.worst()
+    worst_d = None if worst is None else _layer_dict(per_layer, worst, to_part)
     return ReplayReport(
         moves=len(parsed), extruding_moves=n_beads, deposited_mm=deposited,
         points=len(s), inside=inside_share, coverage=cov, shell_coverage=shell_cov,
@@ -238,6 +257,11 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         wall_supported=float(ok[wall].mean()) if wall.any() else 1.0,
         unsupported_wall_layers=bad_layers, collisions=n_hit,
         collision_messages=[r.message() for r in reports],
+        worst_layer_unsupported=0.0 if worst_d is None else worst_d["share"],
+        worst_layer_run_mm=0.0 if worst_d is None else worst_d["run_mm"],
+        worst_layer=worst_d,
+        overhang_layers=[_layer_dict(per_layer, int(i), to_part)
+                         for i in per_layer.overhangs()],
         seconds=time.perf_counter() - t0, timings=st.wall, cpu_timings=st.cpu)
 
 
@@ -285,14 +309,48 @@ def check_budget(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray],
                  line_width: float, budget: float, index_bytes: int = 0) -> None:
     """Raise :class:`ReplayBudgetError` when :func:`memory_estimate` plus ``index_bytes``
     (a prebuilt model index) exceeds ``budget`` bytes (the check holds every deposited
-    sample at once)."""
+    sample at once). The message says what would fit (:func:`budget_advice`)."""
     n, need = memory_estimate(parsed, lengths, line_width)
-    need += index_bytes
-    if need > budget:
+    if need + index_bytes > budget:
+        proc = parsed.headers.get("PROCESS", {})
+        advice = budget_advice(need, budget - index_bytes, _number(proc, "layer_height"),
+                               _number(proc, "nozzle_diameter"))
         raise ReplayBudgetError(
             f"too large to replay-check: {n / 1e6:.1f} M bead samples would need about "
-            f"{need / 2**30:.1f} GiB, above the check's budget of {budget / 2**30:.1f} GiB "
-            f"(a smaller part, or a larger layer height, fits)")
+            f"{(need + index_bytes) / 2**30:.1f} GiB, above the check's budget of "
+            f"{budget / 2**30:.1f} GiB ({advice})")
+
+
+def budget_advice(need: float, room: float, layer_height: float | None,
+                  nozzle_diameter: float | None) -> str:
+    """What fits the replay's memory budget when the samples need ``need`` bytes and have
+    ``room``: the samples, the head's and the moves scale with the number of layers, so a
+    layer height of ``layer_height · need / room`` would, if the nozzle allows it (at most
+    :data:`~slicer.settings.MAX_BEAD_SHARE` × ``nozzle_diameter``); else only a smaller part.
+    Unknown heights (a file without them) give the general advice."""
+    if layer_height is None or nozzle_diameter is None:
+        return "a smaller part, or a larger layer height, fits"
+    largest = MAX_BEAD_SHARE * nozzle_diameter
+    fits = layer_height * need / room if room > 0 else math.inf
+    if layer_height >= largest - 1e-9:
+        return (f"the layer height {layer_height:g} mm is already the largest the "
+                f"{nozzle_diameter:g} mm nozzle takes: the part is too large for the "
+                f"check's memory budget; only a smaller part fits")
+    if fits > largest + 1e-9:
+        return (f"even the largest layer height the {nozzle_diameter:g} mm nozzle takes, "
+                f"{largest:g} mm, would not fit: the part is too large for the check's "
+                f"memory budget; only a smaller part fits")
+    return (f"a layer height of about {math.ceil(fits * 100 - 1e-6) / 100:g} mm or more "
+            f"(process.layer_height, at most {largest:g} mm) fits, or a smaller part")
+
+
+def _number(values: dict[str, Any], key: str) -> float | None:
+    """``values[key]`` as a positive finite float, or ``None``."""
+    try:
+        v = float(values[key])
+    except (KeyError, TypeError, ValueError):
+        return None
+    return v if math.isfinite(v) and v > 0 else None
 
 
 def _wall(model: ModelIndex, points: np.ndarray, line_width: float
@@ -355,6 +413,44 @@ def _inside_share(model: ModelIndex, points: np.ndarray, bound: np.ndarray, slac
     out = np.flatnonzero(~ok)
     ok[out] = np.isfinite(model.distance(points[out], slack, bound[out]))
     return float(np.mean(ok))
+
+
+def _layer_dict(layers: LayerSupport, row: int, to_part: np.ndarray | None
+                ) -> dict[str, Any]:
+    """Row ``row`` of ``layers`` as plain data; its point moved into the part's (STL) frame
+    by ``to_part`` (4, 4; the inverse placement, ``None``: left in the platform frame)."""
+    where = layers.where[row]
+    if to_part is not None:
+        where = to_part[:3, :3] @ where + to_part[:3, 3]
+    return {"subpart": int(layers.subpart[row]), "layer": int(layers.layer[row]),
+            "z": round(float(layers.z[row]), 3),
+            "extruded_mm": round(float(layers.length[row]), 2),
+            "unsupported_mm": round(float(layers.unsupported[row]), 2),
+            "share": round(float(layers.share[row]), 4),
+            "run_mm": round(float(layers.run[row]), 2),
+            "point": None if not np.isfinite(where).all() else [
+                round(float(v), 2) for v in where]}
+
+
+def worst_layer_text(layer: dict[str, Any] | None) -> str:
+    """A layer of :class:`ReplayReport` (``worst_layer``, ``overhang_layers``) in a few
+    words: where, the unsupported share of its extrusion and the longest unsupported run."""
+    if layer is None:
+        return "none"
+    return (f"sub-part {layer['subpart']} layer {layer['layer']} (z {layer['z']:.2f} mm) "
+            f"{100 * layer['share']:.1f}% of {layer['extruded_mm']:.0f} mm unsupported, "
+            f"longest run {layer['run_mm']:.1f} mm")
+
+
+def overhang_text(layer: dict[str, Any]) -> str:
+    """One clause naming a layer printed in the air and a point of it in the part frame."""
+    point = layer["point"]
+    at = "" if point is None else (
+        f" around [{point[0]:.1f}, {point[1]:.1f}, {point[2]:.1f}] mm (part frame)")
+    return (f"sub-part {layer['subpart']} layer {layer['layer']} (z {layer['z']:.2f} mm) "
+            f"prints {100 * layer['share']:.1f}% of its {layer['extruded_mm']:.0f} mm of "
+            f"extrusion over nothing ({layer['unsupported_mm']:.0f} mm unsupported, a run "
+            f"of {layer['run_mm']:.0f} mm{at})")
 
 
 def _layer_name(s: Samples, seq: int) -> str:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -36,6 +37,9 @@ OVERHANG_DEG = 45.0
 LATERAL_SLACK = 0.1  # × line width
 WALL_SLACK = 0.75  # × line width: wall points are this close to the surface
 BAD_LAYER_SHARE = 0.05
+OVERHANG_SHARE = 0.25  # a layer with more of its extrusion (by length) unsupported ...
+OVERHANG_RUN = 15.0  # ... in a continuous unsupported run longer than this (mm) is refused
+RUN_GAP = 1.5  # × line width: judged samples farther apart lie on different beads
 NEIGHBOURS = 10
 CHUNK_PAIRS = 1 << 17  # (sample, candidate) pairs tested at once: 3 MiB per (pairs, 3) array
 
@@ -206,3 +210,120 @@ def bad_wall_layers(seq: np.ndarray, wall: np.ndarray, supported: np.ndarray) ->
     bad = np.bincount(seq[~supported[wall]] + 1, minlength=n_seq)
     share = bad / np.maximum(total, 1)
     return [int(k) - 1 for k in np.flatnonzero(share > BAD_LAYER_SHARE)]
+
+
+@dataclass
+class LayerSupport:
+    """Unsupported extrusion of every printed layer, by length (one row per layer).
+
+    Attributes
+    ----------
+    seq : (k,) int
+        Layers in print order (``Samples.seq``).
+    subpart, layer : (k,) int
+        Their sub-part and layer index.
+    z : (k,) float
+        Median platform-frame z of each layer's samples, mm.
+    length, unsupported : (k,) float
+        Extruded length of each layer and its unsupported part, mm.
+    run : (k,) float
+        Longest continuous unsupported run of each layer (one bead, or adjacent beads), mm.
+    where : (k, 3) float
+        Platform-frame point in the middle of that run (NaN without one).
+    """
+
+    seq: np.ndarray
+    subpart: np.ndarray
+    layer: np.ndarray
+    z: np.ndarray
+    length: np.ndarray
+    unsupported: np.ndarray
+    run: np.ndarray
+    where: np.ndarray
+
+    @property
+    def share(self) -> np.ndarray:
+        """Unsupported share of each layer's extrusion, (k,)."""
+        return self.unsupported / np.maximum(self.length, 1e-12)
+
+    @property
+    def severity(self) -> np.ndarray:
+        """How far each layer is into the refusal zone, (k,): the smaller of its share and
+        its longest run over their limits (``OVERHANG_SHARE``, ``OVERHANG_RUN``); above 1 a
+        layer prints in the air."""
+        return np.minimum(self.share / OVERHANG_SHARE, self.run / OVERHANG_RUN)
+
+    def overhangs(self) -> np.ndarray:
+        """Rows of the layers over both limits, worst first, (j,) int."""
+        sev = self.severity
+        rows = np.flatnonzero(sev > 1.0)
+        return rows[np.argsort(-sev[rows], kind="stable")]
+
+    def worst(self) -> int | None:
+        """Row of the layer nearest the refusal zone (``None`` without layers)."""
+        return int(np.argmax(self.severity)) if len(self.seq) else None
+
+
+def layer_support(s: Samples, judged: np.ndarray, supported: np.ndarray,
+                  line_width: float) -> LayerSupport:
+    """Per layer, how much of its extrusion the judged samples find unsupported.
+
+    Parameters
+    ----------
+    s : Samples
+        Every deposited sample (n), in file order.
+    judged : (m,) int
+        Increasing indices of the judged samples; each stands for the path from itself to
+        the next judged one (the length of the samples' pieces, ``|step|``).
+    supported : (m,) bool
+        Their verdicts (support or bridging).
+    line_width : float
+        mm; judged samples more than ``RUN_GAP`` widths apart break a run.
+
+    Returns
+    -------
+    LayerSupport
+    """
+    if len(judged) == 0:
+        e = np.zeros(0)
+        return LayerSupport(np.zeros(0, np.int64), np.zeros(0, np.int64),
+                            np.zeros(0, np.int64), e, e, e, e, np.zeros((0, 3)))
+    piece = np.sqrt(np.einsum("ij,ij->i", s.step, s.step))
+    weight = np.add.reduceat(piece, judged)
+    seq = s.seq[judged].astype(np.int64)
+    p = s.p[judged]
+    bad = ~supported
+    # runs: consecutive judged samples of one layer, equally (un)supported, on one bead
+    gap = np.linalg.norm(np.diff(p, axis=0), axis=1) > RUN_GAP * line_width
+    cut = np.r_[True, gap | (seq[1:] != seq[:-1]) | (bad[1:] != bad[:-1])]
+    run_id = np.cumsum(cut) - 1
+    first = np.flatnonzero(cut)
+    last = np.r_[first[1:] - 1, len(judged) - 1]
+    run_len = np.bincount(run_id, weights=weight)
+    run_len[~bad[first]] = 0.0
+    layers, row = np.unique(seq, return_inverse=True)  # seq is sorted in file order
+    k = len(layers)
+    length = np.bincount(row, weights=weight, minlength=k)
+    unsupported = np.bincount(row, weights=np.where(bad, weight, 0.0), minlength=k)
+    # the longest run of each layer: runs sorted by (layer, length), the last of each layer
+    run_row = row[first]
+    order = np.lexsort((run_len, run_row))
+    top = order[np.r_[run_row[order][1:] != run_row[order][:-1], True]]
+    run = np.zeros(k)
+    run[run_row[top]] = run_len[top]
+    where = np.full((k, 3), np.nan)
+    has = run_len[top] > 0
+    where[run_row[top[has]]] = p[(first[top[has]] + last[top[has]]) // 2]
+    z = _median_z(p[:, 2], row, k)
+    lay = np.flatnonzero(np.r_[True, seq[1:] != seq[:-1]])
+    return LayerSupport(layers, s.subpart[judged][lay].astype(np.int64),
+                        s.layer[judged][lay].astype(np.int64), z, length, unsupported, run,
+                        where)
+
+
+def _median_z(z: np.ndarray, row: np.ndarray, k: int) -> np.ndarray:
+    """Median of ``z`` (m,) within each of the ``k`` groups ``row`` (m,), (k,)."""
+    order = np.lexsort((z, row))
+    counts = np.bincount(row, minlength=k)
+    starts = np.r_[0, np.cumsum(counts)[:-1]]
+    return z[order][starts + (counts - 1) // 2]

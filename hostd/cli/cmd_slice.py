@@ -19,8 +19,8 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "slice", help="slice an STL to checked five-axis G-code (offline)",
         description="Decompose MODEL.stl, slice every sub-part along its own direction, write "
-                    "joint-space G-code and replay-check it; a file with head collisions is "
-                    "refused.")
+                    "joint-space G-code and replay-check it; a file with head collisions or a "
+                    "layer printed in the air is refused.")
     p.add_argument("model", help="ASCII or binary STL")
     p.add_argument("-o", "--output", required=True, help="G-code file to write")
     p.add_argument("--layer-height", type=float, default=None,
@@ -125,11 +125,13 @@ def _summary(r: Any, out: Path, seconds: float) -> None:
     print(f"filament {est['filament_mm']:.0f} mm ({est['mass_g']:.1f} g), "
           f"time {_hms(float(est['time_s']))} ({est['time_s']:.0f} s)")
     if rep:
+        from slicer.replay import worst_layer_text
+
         print(f"replay: inside {100 * rep['inside']:.2f}%, coverage "
               f"{100 * rep['coverage']:.2f}%, supported {100 * rep['supported']:.2f}% "
               f"(walls {100 * rep['wall_supported']:.2f}%, "
-              f"{len(rep['unsupported_wall_layers'])} unsupported wall layers), "
-              f"collisions {rep['collisions']}")
+              f"{len(rep['unsupported_wall_layers'])} unsupported wall layers; worst layer "
+              f"{worst_layer_text(rep.get('worst_layer'))}), collisions {rep['collisions']}")
     print(f"seconds {seconds:.2f} ({_stages(r.timings)})")
 
 

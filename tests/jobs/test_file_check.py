@@ -162,7 +162,7 @@ def test_the_upload_check_and_the_slicer_agree_on_a_binary_stl_of_another_length
         assert file_check.check_file(str(path), "stl", "box.stl") is None
         assert load_mesh(path)[0].volume == pytest.approx(8000.0)
     else:
-        with pytest.raises(SpoolError, match="box.stl: corrupt binary STL"):
+        with pytest.raises(SpoolError, match=r"box\.stl: corrupt binary STL"):
             file_check.check_file(str(path), "stl", "box.stl")
         with pytest.raises(MeshError, match="truncated binary STL"):
             load_mesh(path)

@@ -256,3 +256,38 @@ def test_a_marlin_reading_of_the_file_extrudes_what_the_slicer_planned(two_part)
     assert est > 0
     assert marlin.extruded == pytest.approx(float(parsed.e.sum()), rel=1e-6)
     assert marlin.extruded == pytest.approx(est, rel=0.02)
+
+
+def test_the_retract_comes_before_the_transition_marker_and_the_block_lifts_first(two_part):
+    """docs/gcode-format.md: SUBPART, the retract, then TRANSITION; the block starts with
+    the lift to the safe height (the first approach has no retract)."""
+    _, res, _ = two_part
+    at = [i for i, ln in enumerate(res.lines) if ln.startswith(";HOSTD_TRANSITION ")]
+    assert len(at) == 2
+    first, second = at
+    assert res.lines[first - 1].startswith(";HOSTD_SUBPART ")
+    assert res.lines[second - 2].startswith(";HOSTD_SUBPART ")
+    assert res.lines[second - 1] == (f"G1 E{-SETTINGS.retract_length:.5f} "
+                                     f"F{SETTINGS.retract_speed * 60:.0f}")
+    safe_z = json.loads(res.lines[second].split(" ", 1)[1])["safe_z"]
+    assert res.lines[second + 1].startswith(f"G0 Z{safe_z:.3f}")
+
+
+def test_moves_that_round_to_a_standstill_are_dropped_and_their_filament_kept():
+    """A path whose vertices lie closer than the printed precision (0.001 mm) would write
+    bare ``G1 E..`` lines: those moves are dropped, their filament goes to the next move."""
+    pts = np.array([[0.0, 0.0, H], [5.0, 0.0, H], [5.0002, 0.0, H], [5.0004, 0.0, H],
+                    [5.0, 5.0, H], [5.0, 5.0003, H]])
+    path = Path("infill", pts, np.full(len(pts), H), W, 40.0)
+    layer = Layer(0, 0, np.zeros(3), np.array([0.0, 0.0, 1.0]), 0.0, 0.0, (H, H), [path])
+    plan = PrintPlan(np.eye(4), [SubpartPlan(0, None, None, None, np.array([0, 0, 1.0]),
+                                             [layer])])
+    res = generate(plan, SETTINGS, MachineSetup(GEO))
+    parsed = parse_lines(res.lines)
+    moved = np.abs(np.nan_to_num(parsed.end - parsed.start)).max(axis=1) > 0
+    standstill = (parsed.e > 0) & ~moved & (parsed.e != SETTINGS.retract_length)
+    assert not standstill.any(), [res.lines[i - 1] for i in parsed.line[standstill]]
+    _, e = path_extrusion(path, math.pi * SETTINGS.filament_diameter ** 2 / 4)
+    printed = parsed.e[(parsed.e > 0) & moved]
+    assert len(printed) == 2  # the two long sides carry the whole path's filament
+    assert printed.sum() == pytest.approx(e.sum(), abs=1e-5)

@@ -130,3 +130,30 @@ def test_a_file_over_the_memory_budget_is_refused_in_one_line(monkeypatch):
     assert isinstance(err.value, SlicingError)  # hostctl and the daemon report it as such
     assert "\n" not in str(err.value) and "budget" in str(err.value)
     assert taken == []  # refused before any sample was taken
+
+
+@pytest.mark.parametrize(("height", "expected", "not_expected"), [
+    (0.2, "a layer height of about", "too large for the check's memory budget"),
+    (0.32, "the layer height 0.32 mm is already the largest the 0.4 mm nozzle takes: the "
+           "part is too large for the check's memory budget; only a smaller part fits",
+     "larger layer height"),
+])
+def test_the_refusal_advises_only_what_can_fit(monkeypatch, height, expected, not_expected):
+    plan = box_plan(GEO, n_layers=6, h=height)
+    parsed = parse_lines(generate(plan, ProcessSettings(layer_height=height),
+                                  MachineSetup(GEO)).lines)
+    _, need = memory_estimate(parsed, move_lengths(parsed), ProcessSettings().line_width)
+    with pytest.raises(ReplayBudgetError) as err:  # over by a fifth: 1.2 × 0.2 mm fits
+        replay_check(parsed, prism_mesh(np.zeros(3), UP, 5.0, 6 * height),
+                     memory_budget=need / 1.2)
+    assert expected in str(err.value) and not_expected not in str(err.value)
+
+
+def test_the_advice_says_when_even_the_largest_layer_height_would_not_fit():
+    gib = float(1 << 30)
+    assert replay.budget_advice(1.2 * gib, gib, 0.2, 0.4) == (
+        "a layer height of about 0.24 mm or more (process.layer_height, at most 0.32 mm) "
+        "fits, or a smaller part")
+    assert replay.budget_advice(3.0 * gib, gib, 0.2, 0.4).startswith(
+        "even the largest layer height the 0.4 mm nozzle takes, 0.32 mm, would not fit")
+    assert "larger layer height" in replay.budget_advice(2 * gib, gib, None, None)

@@ -8,8 +8,10 @@ import manifold3d as m3
 import pytest
 
 from kinematics.machine import MachineGeometry
-from slicer.pipeline import slice_model
+from slicer.gcode_reader import parse_lines
+from slicer.pipeline import OverhangError, slice_model
 from slicer.printhead import Printhead
+from slicer.replay import replay_check
 from slicer.replay_support import THIN_LAYER
 from slicer.samples import to_trimesh
 from slicer.settings import ProcessSettings
@@ -36,9 +38,15 @@ def test_a_cylinder_is_supported_everywhere(settings: ProcessSettings):
 
 @pytest.mark.parametrize("settings", [THIN, ProcessSettings()], ids=["0.05", "0.2"])
 def test_a_ledge_is_still_unsupported(settings: ProcessSettings):
-    """A disc r 6 on a post r 3: the disc's first layers hang 3 mm out over the air."""
+    """A disc r 6 on a post r 3: the disc's first layers hang 3 mm out over the air. The
+    slice is refused (a layer in the air); the replay of its G-code shows the ledge."""
     post = m3.Manifold.cylinder(2.0, 3.0, 3.0, 48)
     disc = m3.Manifold.cylinder(1.0, 6.0, 6.0, 48).translate((0.0, 0.0, 2.0))
-    rep = _slice(post + disc, settings)
-    assert rep["wall_supported"] < 0.99
-    assert rep["unsupported_wall_layers"]
+    with pytest.raises(OverhangError, match="layer printed in the air"):
+        _slice(post + disc, settings)
+    res = slice_model(to_trimesh(post + disc), settings, GEO, Printhead.default(), planar=True,
+                      check=False)
+    rep = replay_check(parse_lines(res.lines), to_trimesh(post + disc))
+    assert rep.wall_supported < 0.99
+    assert rep.unsupported_wall_layers
+    assert rep.overhang_layers[0]["z"] == pytest.approx(2.0 + settings.layer_height)
