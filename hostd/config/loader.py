@@ -177,6 +177,8 @@ def _script_gcode(c: Config, key: str) -> str | None:
         envelope_from_config(c.data).check_temperatures(program)
     except ProgramError as exc:
         return f"script {exc}"
+    except ValueError as exc:  # a format spec that does not suit its value
+        return str(exc)
     return None
 
 

@@ -57,5 +57,19 @@ def script_problem(template: str) -> str | None:
 
 
 def filled(cfg: Config, template: str) -> str:
-    """``template`` with its placeholders filled as a print would (``{safe_z}`` 0)."""
-    return template.format_map({**process_values(cfg), "safe_z": 0.0})
+    """``template`` with its placeholders filled as a print would (``{safe_z}`` 0.0, a
+    float as the slicer and the daemon's cancel give it); raises :class:`ValueError` naming
+    the placeholder when its format spec does not suit its value (``{safe_z:x}``)."""
+    values = {**process_values(cfg), "safe_z": 0.0}
+    for _, field, spec, conversion in string.Formatter().parse(template):
+        if field is None:
+            continue
+        try:
+            ("{0" + (f"!{conversion}" if conversion else "") + f":{spec}}}").format(
+                values[field])
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"placeholder {{{field}:{spec}}}: {exc}") from None
+        except (KeyError, IndexError):  # {safe_z:{width}}
+            raise ValueError(f"placeholder {{{field}:{spec}}}: a format spec cannot hold a "
+                             "placeholder") from None
+    return template.format_map(values)

@@ -27,6 +27,8 @@ from hostd.printer.modal import ModalState
 from hostd.printer.program import Program, Transition
 
 log = logging.getLogger(__name__)
+FALLBACK_END = "M104 S0\nM140 S0\nM107\nM84\n"
+"""What a cancel sends when the end script cannot be filled: heaters, fan and motors off."""
 BARRIER = "M105"  # answered "ok T:...": the ok that says which line it acknowledges
 
 
@@ -289,6 +291,10 @@ class Streamer:
     # -- pause / resume --------------------------------------------------------------------
 
     async def _pause(self, move: bool = True) -> None:
+        # Cleared first, so that a resume or cancel asked while the pause's own lines are
+        # out is kept: cleared after them, a cancel was lost and the job stayed paused.
+        if not self._cancel.is_set():
+            self._resume.clear()
         await self._drain()
         self.paused_modal = self.modal.copy()
         self.state = "paused"
@@ -298,7 +304,6 @@ class Streamer:
                                                  s.lift_f):
                 await self._extra(cmd)
         self.hooks.paused(self, self.pause_reason)
-        self._resume.clear()
         await self._resume.wait()
         self._pause_req.clear()
         self._stop_asked = self._cancel.is_set()
@@ -322,14 +327,22 @@ class Streamer:
     async def _finish_cancel(self) -> str:
         await self._drain()
         self.state = "cancelling"
-        end = self.settings.end_gcode.format_map(
-            {**self.settings.end_values, "safe_z": f"{self._safe_z():.3f}"})
-        for raw in end.splitlines():
+        for raw in self._end_script().splitlines():
             cmd = raw.split(";", 1)[0].strip()
             if cmd:
                 await self._extra(cmd)
         self.state = "done"
         return "cancelled"
+
+    def _end_script(self) -> str:
+        """The end script filled as the slicer fills it; if it cannot be (the config check
+        makes that a bug), the heaters go off all the same."""
+        values = {**self.settings.end_values, "safe_z": round(self._safe_z(), 3)}
+        try:
+            return self.settings.end_gcode.format_map(values)
+        except (KeyError, IndexError, ValueError, TypeError) as exc:
+            log.error("end script cannot be filled (%s): heaters off, motors off instead", exc)
+            return FALLBACK_END
 
     # -- transitions -------------------------------------------------------------------------
 

@@ -9,6 +9,7 @@ import pytest
 from hostd.config import ConfigError, defaults, load, loads
 from hostd.config.docs import render_markdown, render_yaml
 from hostd.config.paths import DEFAULT_CONFIG
+from hostd.config.placeholders import filled
 from hostd.config.schema import SCHEMA
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -108,6 +109,12 @@ def _error(text: str) -> str:
         ("process:\n  start_gcode: \"M104 S{nozzle_temperature[0]}\"\n",
          "config/hostd.yaml:2: process.start_gcode: unknown placeholder "
          "{nozzle_temperature[0]} (a bare name of: "),
+        ("process:\n  end_gcode: \"G0 Z{safe_z:x} F3000\"\n",
+         "config/hostd.yaml:2: process.end_gcode: placeholder {safe_z:x}: Unknown format code "
+         "'x' for object of type 'float'"),
+        ("process:\n  end_gcode: \"G0 Z{safe_z:{w}} F3000\"\n",
+         "config/hostd.yaml:2: process.end_gcode: placeholder {safe_z:{w}}: a format spec "
+         "cannot hold a placeholder"),
         ("sim:\n  silence_at_line: 40\n",
          "config/hostd.yaml:2: sim.silence_at_line: silences nothing with sim.silence_lines 0"),
         ("machine:\n  max_hotend_temp: 200\n",
@@ -127,6 +134,12 @@ def test_bad_values_are_fatal_with_file_line_and_key(text: str, expected: str) -
     message = _error(text)
     assert message.startswith(expected), message
     assert "\n" not in message
+
+
+def test_a_script_may_format_its_placeholders() -> None:
+    cfg = loads("process:\n  end_gcode: \"G0 Z{safe_z:.1f} F3000\\nM140 S{bed_temperature:.0f}\"\n",
+                "f.yaml")
+    assert filled(cfg, cfg["process.end_gcode"]) == "G0 Z0.0 F3000\nM140 S60"
 
 
 def test_missing_file_is_named(tmp_path: Path) -> None:

@@ -191,6 +191,41 @@ async def test_pause_records_modal_state_and_resume_restores_it():
     assert file_commands(port.log, st.stats.extra_commands) == prog.commands
 
 
+class HookedPort(FakePort):
+    """Calls ``on(command)`` as each command is submitted (an operator acting meanwhile)."""
+
+    def __init__(self, on) -> None:
+        super().__init__()
+        self.on = on
+
+    def submit(self, command: str) -> asyncio.Future[None]:
+        fut = super().submit(command)
+        self.on(command)
+        return fut
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("then", ["cancel", "resume"])
+async def test_a_cancel_or_resume_asked_during_the_pause_moves_is_kept(then: str):
+    # Before: the pause cleared the resume flag after its retract and lift, so a cancel asked
+    # meanwhile was lost (the job stayed paused; the next resume cancelled it) and a resume
+    # left it paused.
+    prog = parse_program(GCODE)
+    st: Streamer
+
+    def on(command: str) -> None:
+        if command == "G1 Z5.2000 F600":  # the pause's lift, on its way
+            st.request_cancel() if then == "cancel" else st.request_resume()
+
+    port = HookedPort(on)
+    st = Streamer(port, prog, StreamSettings(lookahead=1, lift=5), Hooks(
+        progress=lambda s: s.request_pause() if s.acked == 7 else None))
+    async with asyncio.timeout(5):
+        result = await st.run()  # no further request: the one asked is enough
+    assert result == ("cancelled" if then == "cancel" else "completed")
+    assert ("G1 X10 Y20 E4" in port.log) == (then == "resume")
+
+
 @pytest.mark.asyncio
 async def test_cancel_runs_end_script():
     prog = parse_program(GCODE)
@@ -199,9 +234,24 @@ async def test_cancel_runs_end_script():
         progress=lambda s: s.request_cancel() if s.acked == 6 else None))
     async with asyncio.timeout(5):
         assert await st.run() == "cancelled"
-    assert port.log[-6:] == ["M104 S0", "M140 S0", "M107", "G0 Z50.200 F3000",
-                             "G0 A0 C0 F3000", "M84"]
+    assert port.log[-6:] == ["M104 S0", "M140 S0", "M107", "G0 Z50.2 F3000",
+                             "G0 A0 C0 F3000", "M84"]  # safe_z filled as the slicer does
     assert "G1 X10 Y20 E4" not in port.log
+
+
+@pytest.mark.asyncio
+async def test_a_cancel_fills_format_specs_as_the_slicer_and_the_config_check_do():
+    # Before: the cancel filled {safe_z} as a string, so "{safe_z:.1f}" (accepted by the
+    # config check, which fills a float) failed the cancel and left the heaters on.
+    prog = parse_program(GCODE)
+    port = FakePort()
+    end = "M104 S0\nG0 Z{safe_z:.1f} F3000\nM140 S{bed_temperature:.0f}\n"
+    st = Streamer(port, prog, StreamSettings(lookahead=2, safe_height=50, end_gcode=end,
+                                             end_values={"bed_temperature": 0}),
+                  Hooks(progress=lambda s: s.request_cancel() if s.acked == 6 else None))
+    async with asyncio.timeout(5):
+        assert await st.run() == "cancelled"
+    assert port.log[-3:] == ["M104 S0", "G0 Z50.2 F3000", "M140 S0"]
 
 
 @pytest.mark.asyncio
@@ -434,3 +484,14 @@ async def test_batches_left_out_are_let_go_without_a_never_retrieved_error(endin
     finally:
         loop.set_exception_handler(None)
     assert never_retrieved(contexts) == []
+
+
+@pytest.mark.asyncio
+async def test_a_cancel_whose_end_script_cannot_be_filled_still_turns_the_heaters_off():
+    prog = parse_program(GCODE)
+    port = FakePort()
+    st = Streamer(port, prog, StreamSettings(lookahead=2, end_gcode="G0 Z{unknown}\n"),
+                  Hooks(progress=lambda s: s.request_cancel() if s.acked == 6 else None))
+    async with asyncio.timeout(5):
+        assert await st.run() == "cancelled"
+    assert port.log[-4:] == ["M104 S0", "M140 S0", "M107", "M84"]
