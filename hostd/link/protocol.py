@@ -264,10 +264,16 @@ class Protocol:
 
         A line going out in parts is finished first (see the module docstring).
         """
-        self._finish_partial()
-        self._out.append(Write(encode("M112")))
+        self._halt_board()
         self._fail(errors.EmergencyStop("emergency stop (M112) sent", self.last_acked), "halted")
         return self._flush()
+
+    def _halt_board(self) -> None:
+        """``M112`` now, past the window: the board stops with its heaters off. Sent too when
+        the host gives the link up as too noisy to go on, so that a board the host can no
+        longer drive is not left heating (``halted``: a firmware restart brings it back)."""
+        self._finish_partial()
+        self._out.append(Write(encode("M112")))
 
     def disconnected(self, reason: str, now: float) -> list[Action]:
         """The port went away: fail everything outstanding."""
@@ -345,6 +351,7 @@ class Protocol:
 
     def _fail(self, error: errors.LinkError, state: str) -> None:
         self._out.append(Failed(error))
+        self.observed.forget_machine()  # halted (heaters off), reset, or out of reach
         self._pending.clear()
         self._resend.clear()
         self._inflight.clear()
@@ -648,6 +655,7 @@ class Protocol:
     def _rewind(self, line: int) -> None:
         missing = [n for n in range(line, self._sent_max + 1) if n not in self._history]
         if missing:
+            self._halt_board()
             self._fail(errors.HistoryExhausted(
                 f"firmware asked for line {line}, no longer in the resend history",
                 self._acked), "halted")
@@ -655,6 +663,7 @@ class Protocol:
         count = self._resend_counts.get(line, 0) + 1
         self._resend_counts[line] = count
         if count > self.settings.resend_limit:
+            self._halt_board()
             self._fail(errors.ResendLoop(
                 f"firmware asked for line {line} {count} times (limit "
                 f"{self.settings.resend_limit}): the link is too noisy", self._acked), "halted")

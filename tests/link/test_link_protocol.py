@@ -144,13 +144,19 @@ def test_a_resend_is_noted_for_the_log_once_per_request_acted_on() -> None:
 
 def test_a_line_rejected_too_often_fails_the_job() -> None:
     p = ready(resend_limit=3)
+    p.receive("ok T:210.00 /210.00 B:60.00 /60.00 @:40 B@:0", 0.0)
     p.submit("G1 X1", 0.0)
     errors: list[object] = []
     for _ in range(4):
-        errors += failures(p.receive("Resend: 1", 0.1))
+        actions = p.receive("Resend: 1", 0.1)
+        errors += failures(actions)
         p.receive("ok", 0.1)
     assert len(errors) == 1 and isinstance(errors[0], ResendLoop)
     assert "line 1" in str(errors[0])
+    # the host gives the board up: it halts it (heaters off) rather than leave it heating,
+    # and shows no temperatures it can no longer read
+    assert writes(actions)[-1] == "M112" and p.state == "halted"
+    assert p.snapshot()["temperatures"] == {}
 
 
 def test_advanced_ok_resynchronises_after_lost_oks() -> None:
@@ -347,8 +353,10 @@ def test_resends_reach_back_history_size_lines_and_no_further() -> None:
     for i in range(1, 41):
         p.submit(f"G1 X{i}", 0.0)
         p.receive("ok", 0.1)
-    (error,) = failures(p.receive("Resend: 5", 0.2))
+    actions = p.receive("Resend: 5", 0.2)
+    (error,) = failures(actions)
     assert isinstance(error, HistoryExhausted) and "line 5" in str(error)
+    assert writes(actions) == ["M112"]
 
 
 @pytest.mark.parametrize("many", [False, True])
