@@ -277,6 +277,8 @@ class JobManager:
 
     async def delete(self, job_id: int) -> Job:
         job = self.store.delete(job_id)
+        if self._slicing == job_id and self.worker is not None:
+            self.worker.cancel()  # its STL is about to go: no slice of it is wanted
         self.counts[job.state.value] -= 1
         if self.hold_reason is not None and self.hold_reason.startswith(f"job {job_id} "):
             self._set_hold(f"job {job_id} was deleted (its part may still be on the platform):"
@@ -329,6 +331,13 @@ class JobManager:
                 except Exception as exc:  # a bug: this job fails, the queue goes on
                     self._fail_on_bug(job.id, "slicing", exc)
 
+    def _state_of(self, job_id: int) -> JobState | None:
+        """The job's state now, ``None`` once it is deleted."""
+        try:
+            return self.store.get(job_id).state
+        except JobNotFound:
+            return None
+
     def _next_stl(self) -> Job | None:
         for job in self.store.list([JobState.QUEUED]):
             if job.kind == "stl":
@@ -350,11 +359,11 @@ class JobManager:
             data = await asyncio.to_thread(outcome.gcode_path.read_bytes)
             sha = await asyncio.to_thread(self.spool.put, data, ".gcode")
         except (SliceError, SpoolError, PrinterError) as exc:
-            if self.store.get(job.id).state is JobState.SLICING:
+            if self._state_of(job.id) is JobState.SLICING:
                 self._set_state(job.id, JobState.FAILED, f"slicing failed: {exc}")
             return
-        if self.store.get(job.id).state is not JobState.SLICING:
-            return  # cancelled meanwhile
+        if self._state_of(job.id) is not JobState.SLICING:
+            return  # cancelled or deleted meanwhile
         info = {**outcome.info, "slice_s": round(outcome.duration_s, 3),
                 "cache_hit": outcome.cache_hit, "subparts": summary.subparts,
                 "layers": summary.layers, "transitions": summary.transitions}

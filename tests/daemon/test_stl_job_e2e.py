@@ -119,9 +119,12 @@ async def test_an_stl_the_slicer_refuses_fails_naming_the_uploaded_file(daemon_f
     assert await d.stop() == 0
 
 
-async def test_cancelling_a_job_while_it_slices_stops_the_slice(daemon_factory):
+@pytest.mark.parametrize("how", ["cancel", "delete"])
+async def test_cancelling_a_job_while_it_slices_stops_the_slice(daemon_factory, how: str):
     """The worker is ended, not left to finish a slice nobody wants: the next STL job is
-    sliced by a fresh worker, and the cancelled one leaves nothing in the cache."""
+    sliced by a fresh worker, and the cancelled one leaves nothing in the cache. Deleting
+    the job does the same (it used to leave the slice running on a removed STL, to fail
+    with an internal error)."""
     d = daemon_factory()
     await d.start()
     async with asyncio.timeout(300):
@@ -129,7 +132,11 @@ async def test_cancelling_a_job_while_it_slices_stops_the_slice(daemon_factory):
         await c.call("events.subscribe", events=["job.state"])
         slow = await c.call("job.submit", name="pipe3.stl", data=_stl(pipe3()))
         await c.until_state(slow["id"], "slicing")
-        assert (await c.call("job.cancel", id=slow["id"]))["state"] == "cancelled"
+        gone = await c.call(f"job.{how}", id=slow["id"])
+        if how == "delete":
+            assert gone == {"deleted": slow["id"]}
+        else:
+            assert gone["state"] == "cancelled"
         small = await c.call("job.submit", name="cyl.stl", data=_stl(cylinder()))
         await c.until_state(small["id"], "completed", "failed")
         got = await c.call("job.get", id=small["id"])
