@@ -479,6 +479,10 @@ class JobManager:
         finally:
             self._resume_request = None
         log.info("job %d resumes from %s at command %d", job_id, scope, start)
+        if self.hold_reason is not None and self.hold_reason.startswith(f"job {job_id} "):
+            # "...was interrupted: resume it" is done; the part stays on the platform
+            self._set_hold(f"job {job_id} was resumed: when it ends, clear the platform, "
+                           "then hostctl queue start")
         await self._run(job, start, modal, prelude, program=program,
                         note=f"resumed from {scope} at line {start}")
 

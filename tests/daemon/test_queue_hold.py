@@ -109,6 +109,8 @@ async def test_an_interrupted_job_holds_the_queue_and_can_still_be_resumed(daemo
         other = await c.submit_text("other.gcode", _job(4))
         resumed = await c.call("job.resume", id=job["id"], **{"from": "layer"})
         assert resumed["state"] == "printing"  # the hold does not stop a resume
+        queue = await c.call("queue.status")  # no longer "resume it"; still held
+        assert queue["held"] is True and "was resumed" in queue["reason"], queue
         assert (await c.call("job.wait", id=job["id"]))["state"] == "completed"
         assert (await c.call("job.get", id=other["id"]))["state"] == "ready"
         await c.close()
