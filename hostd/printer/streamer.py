@@ -196,7 +196,10 @@ class Streamer:
                         return await self._finish_cancel()
                 continue
             index = await self._feed(index, self.program.next_transition_start(index))
-        await self._drain()
+        # M400: the job is done when its moves are, not when its last line is taken into
+        # the planner (seconds of moves may still be queued while "completed" tells the
+        # operator to clear the platform)
+        await self._extra("M400")
         self.state = "done"
         return "completed"
 

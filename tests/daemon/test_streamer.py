@@ -355,7 +355,7 @@ async def test_at_most_lookahead_lines_are_out(lookahead: int, most: int) -> Non
     st = Streamer(port, prog, StreamSettings(lookahead=lookahead))
     async with asyncio.timeout(5):
         assert await st.run() == "completed"
-    assert port.log == [*prog.commands, BARRIER]
+    assert port.log == [*prog.commands, BARRIER, "M400"]  # done when the moves are
     assert port.most_out == most
 
 
