@@ -111,7 +111,8 @@ SCHEMA: dict[str, dict[str, Field]] = {
                             integer=True),
         "start_gcode": Text("G-code before the print; {placeholders} from this section.",
                             DEFAULT_START_GCODE, multiline=True),
-        "end_gcode": Text("G-code after the print; {safe_z} is the safe machine Z.",
+        "end_gcode": Text("G-code after the print (and after a cancel); {safe_z} is the "
+                          "safe machine Z: no lower than the file's transitions lift.",
                           DEFAULT_END_GCODE, multiline=True),
     },
     "decompose": {

@@ -27,7 +27,7 @@ from hostd.printer.envelope import Envelope
 from hostd.printer.errors import PrinterError
 from hostd.printer.modal import ModalState
 from hostd.printer.program import Program, Transition
-from hostd.printer.streamer import Hooks, Port, Streamer, StreamSettings
+from hostd.printer.streamer import Hooks, Port, Streamer, StreamSettings, safe_z
 from hostd.slicing_worker import SliceError, SlicingWorker, sliced_reason
 
 log = logging.getLogger(__name__)
@@ -501,7 +501,7 @@ class JobManager:
         modal = await asyncio.to_thread(program.modal_before, start)
         s = self.settings
         prelude = [] if start == 0 else modal.restart_commands(
-            min(s.z_max, modal.position["Z"] + s.safe_height), s.travel_f, s.rotary_f, s.lift_f)
+            safe_z(modal.position["Z"], program, s), s.travel_f, s.rotary_f, s.lift_f)
         return start, modal, prelude
 
     async def _load_program(self, job: Job) -> Program:

@@ -80,6 +80,12 @@ class Program:
             self._by_start = {t.start: t for t in self.transitions}
         return self._by_start.get(index)
 
+    @property
+    def transition_z(self) -> float | None:
+        """The highest machine Z a transition of the file lifts to before it turns the
+        platform: the slicer's clearance for the whole part (``None`` without transitions)."""
+        return max((t.target["Z"] for t in self.transitions if "Z" in t.target), default=None)
+
     def next_transition_start(self, index: int) -> int:
         """The first command after ``index`` that starts a transition block (``total`` if
         none)."""

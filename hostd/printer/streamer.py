@@ -325,7 +325,7 @@ class Streamer:
         self.hooks.resumed(self)
 
     def _safe_z(self) -> float:
-        return min(self.settings.z_max, self.modal.position["Z"] + self.settings.safe_height)
+        return safe_z(self.modal.position["Z"], self.program, self.settings)
 
     async def _finish_cancel(self) -> str:
         await self._drain()
@@ -440,3 +440,13 @@ def _temperatures(replies: tuple[Reply, ...]) -> dict[str, float]:
                 out["T"] = out["T0"]
             return out
     return {}
+
+
+def safe_z(z: float, program: Program, settings: StreamSettings) -> float:
+    """The machine Z to turn the platform at (a restart) or to end at (a cancel), from Z
+    ``z``: ``settings.safe_height`` above it, and no lower than the file's own transitions
+    lift (:attr:`Program.transition_z`): a tall sub-part printed earlier may reach higher
+    than the one printing when the platform turns. At most ``settings.z_max``."""
+    lifted = z + settings.safe_height
+    clear = program.transition_z
+    return min(settings.z_max, lifted if clear is None else max(lifted, clear))

@@ -234,8 +234,10 @@ async def test_cancel_runs_end_script():
         progress=lambda s: s.request_cancel() if s.acked == 6 else None))
     async with asyncio.timeout(5):
         assert await st.run() == "cancelled"
-    assert port.log[-6:] == ["M104 S0", "M140 S0", "M107", "G0 Z50.2 F3000",
-                             "G0 A0 C0 F3000", "M84"]  # safe_z filled as the slicer does
+    # safe_z filled as the slicer does, and as high as the file's transitions lift (Z60):
+    # Z + safe_height alone (50.2) would turn the platform under a taller earlier sub-part
+    assert port.log[-6:] == ["M104 S0", "M140 S0", "M107", "G0 Z60.0 F3000",
+                             "G0 A0 C0 F3000", "M84"]
     assert "G1 X10 Y20 E4" not in port.log
 
 
@@ -251,7 +253,7 @@ async def test_a_cancel_fills_format_specs_as_the_slicer_and_the_config_check_do
                   Hooks(progress=lambda s: s.request_cancel() if s.acked == 6 else None))
     async with asyncio.timeout(5):
         assert await st.run() == "cancelled"
-    assert port.log[-3:] == ["M104 S0", "G0 Z50.2 F3000", "M140 S0"]
+    assert port.log[-3:] == ["M104 S0", "G0 Z60.0 F3000", "M140 S0"]
 
 
 @pytest.mark.asyncio
