@@ -24,8 +24,15 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from kinematics.machine import MachineGeometry
+from kinematics.orient import nearest_reachable_direction
 from slicer.buildorder import MERGE_ANGLE, Groups, group_regions_refined, root_region
-from slicer.mesh_io import check_size, place_on_platform, repair, separate_bodies
+from slicer.mesh_io import (
+    canonical_mesh,
+    check_size,
+    place_on_platform,
+    repair,
+    separate_bodies,
+)
 from slicer.overhang import Overhang, decomposition_overhang
 from slicer.partition import K_MIN, Partition, analysis_mesh, auto_k, coarse_partition
 from slicer.plane_refine import ParentFrame, refine_plane, splits_clear
@@ -38,6 +45,7 @@ from slicer.planes import (
     fit_plane,
     search_plane,
     surface_samples,
+    unreachable_phrase,
     verify_base,
 )
 from slicer.planes2d import TOL
@@ -214,10 +222,12 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     ----------
     mesh : trimesh.Trimesh
         The part. When ``placement`` is None it is repaired and placed on its flat base;
-        otherwise it is taken as already placed by ``placement``.
+        otherwise it is taken as already placed by ``placement``. Either way it is put in
+        canonical order on the snap grid (:func:`~slicer.mesh_io.canonical_mesh`), so the
+        result depends on the shape, not on the face order or a translation's residue.
     settings : DecomposeSettings
     machine : MachineGeometry
-        Only ``a_limits`` is used (reachability of build directions).
+        Only ``a_limits`` and ``c_limits`` are used (reachability of build directions).
     head : Printhead
     build_volume : (3,) float, optional
         Largest extents, mm.
@@ -230,6 +240,8 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     if placement is None:
         mesh, placed = place_on_platform(repair(mesh))
         placement = placed.matrix
+    else:
+        mesh = canonical_mesh(mesh)
     check_size(mesh, "<mesh>", build_volume, settings.nozzle_diameter)
     bodies = separate_bodies(mesh)
     if bodies:
@@ -385,7 +397,7 @@ def _cut_all(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition, groups:
         region = _subtree(groups, g)[face_group[tree.query(piece.triangles_center)[1]]]
         others = [p for k, p in pieces.items() if k != pg]
         ctx = PieceContext(piece, region, surface_samples(others, settings.seed), head,
-                           machine.a_limits, settings.seed)
+                           machine.a_limits, settings.seed, machine.c_limits)
         check, its = _find_plane(ctx, part, face_group, groups, g, nominal, settings, rng)
         check, more = refine_plane(ctx, check, _frame_of(subparts[pg]), groups.direction[g],
                                    settings.search, rng)
@@ -448,7 +460,7 @@ def _find_plane(ctx: PieceContext, part: Partition, face_group: np.ndarray, grou
     centre = am.triangles_center[face_group == g].mean(axis=0)
     lsq = fit_plane(pts, centre)
     axis = groups.direction[g] * np.sign(groups.direction[g] @ (centre - lsq.point) or 1.0)
-    axis = nearest_reachable(axis, ctx.a_limits)
+    axis = nearest_reachable(axis, ctx.a_limits, ctx.c_limits)
     total, best = 0, None
     for start in (Plane(lsq.point, axis), lsq):
         check, its = search_plane(ctx, start, settings.search, rng,
@@ -461,16 +473,19 @@ def _find_plane(ctx: PieceContext, part: Partition, face_group: np.ndarray, grou
     # name a point on the part: the boundary point nearest the plane's (which may lie in
     # empty space once the search has moved the plane)
     where = pts[int(np.argmin(np.linalg.norm(pts - best.plane.point, axis=1)))]
-    raise DecompositionError(_failure(best, g, pg, total, where))
+    raise DecompositionError(_failure(best, g, pg, total, where, ctx))
 
 
-def nearest_reachable(direction: np.ndarray, a_limits: tuple[float, float]) -> np.ndarray:
-    """The direction reachable within ``a_limits`` nearest to unit ``direction`` (3,).
+def nearest_reachable(direction: np.ndarray, a_limits: tuple[float, float],
+                      c_limits: tuple[float, float] | None = None) -> np.ndarray:
+    """The direction reachable within the table limits nearest to unit ``direction`` (3,).
 
-    The tilt from +Z is clamped into the reachable range (A turns a tilt t or -t to +Z; C
-    any azimuth), the azimuth kept. A branch pointing below the horizontal is then searched
-    from the horizontal through its root, not from a plane the walk must tilt step by step
-    (each step also drifting the plane along the branch).
+    With a continuous C the tilt from +Z is clamped into the reachable range (A turns a tilt
+    t or -t to +Z; C any azimuth), the azimuth kept. A branch pointing below the horizontal
+    is then searched from the horizontal through its root, not from a plane the walk must
+    tilt step by step (each step also drifting the plane along the branch). With C limits
+    only some azimuths are reachable at a tilt: the nearest direction any (A, C) within both
+    limits turns to +Z is taken (:func:`kinematics.orient.nearest_reachable_direction`).
 
     Parameters
     ----------
@@ -478,13 +493,19 @@ def nearest_reachable(direction: np.ndarray, a_limits: tuple[float, float]) -> n
         Unit direction in the platform frame.
     a_limits : (2,) float
         A range [min, max], degrees.
+    c_limits : (2,) float or None
+        C range [min, max], degrees; ``None`` for a continuous C.
 
     Returns
     -------
     (3,) float
-        ``direction`` itself when reachable (or when no tilt is), else the clamped unit vector.
+        ``direction`` itself when reachable (or when nothing is), else the nearest reachable
+        unit vector.
     """
     d = np.asarray(direction, dtype=float)
+    if c_limits is not None:
+        near = nearest_reachable_direction(d, a_limits, c_limits)
+        return d if near is None else near
     tilt = np.degrees(np.arctan2(np.hypot(d[0], d[1]), d[2]))
     lo, hi = a_limits
     spans = [(max(lo, 0.0), hi), (max(-hi, 0.0), -lo)]
@@ -499,13 +520,14 @@ def nearest_reachable(direction: np.ndarray, a_limits: tuple[float, float]) -> n
     return np.array([np.sin(t) * np.cos(az), np.sin(t) * np.sin(az), np.cos(t)])
 
 
-def _failure(check: Check, g: int, pg: int, iterations: int, point: np.ndarray) -> str:
+def _failure(check: Check, g: int, pg: int, iterations: int, point: np.ndarray,
+             ctx: PieceContext) -> str:
     where = "[" + ", ".join(f"{x:.1f}" for x in point) + "]"
     head = f"boundary between sub-part {pg} and sub-part {g} near {where} mm"
     if not check.valid:
         why = "constraint II fails: no plane leaves the child on its positive side"
     elif not check.reachable:
-        why = "constraint II fails: the build direction is outside the A limits"
+        why = unreachable_phrase(check.plane.normal, ctx.a_limits, ctx.c_limits)
     elif not check.platform_ok:
         why = "constraint I fails: the printhead would reach below the platform"
     else:
@@ -520,7 +542,8 @@ def _verify(subparts: list[Subpart], machine: MachineGeometry, head: Printhead) 
     for s in subparts:  # indices are in build order
         if s.base_plane is not None:
             obstacles = surface_samples(printed, 0)
-            problem = verify_base(s.mesh, s.base_plane, obstacles, head, machine.a_limits)
+            problem = verify_base(s.mesh, s.base_plane, obstacles, head, machine.a_limits,
+                                  machine.c_limits)
             if problem:
                 near = s.mesh.vertices[np.argmin(np.linalg.norm(
                     s.mesh.vertices - s.base_plane.point, axis=1))]  # a point on the part

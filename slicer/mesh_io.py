@@ -26,7 +26,11 @@ import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from slicer.planes2d import TOL
 from slicer.samples import to_manifold, to_trimesh
+
+#: A direction no structured mesh is aligned with: the first key of the canonical order.
+GENERIC = np.array([0.5377, 0.7185, 0.4411]) / np.linalg.norm([0.5377, 0.7185, 0.4411])
 
 #: Tolerances of this module (mm, or cosines of angles).
 PLANE_TOL = 1e-3  # distance of a face from its base plane, mm
@@ -287,7 +291,51 @@ def place_on_platform(mesh: trimesh.Trimesh, name: str = "<mesh>"
     matrix = shift @ matrix
     placed = mesh.copy()
     placed.apply_transform(matrix)
-    return placed, Placement(matrix, area, np.asarray(normal, dtype=float))
+    return canonical_mesh(placed), Placement(matrix, area, np.asarray(normal, dtype=float))
+
+
+def canonical_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``mesh`` snapped to ``TOL.snap_grid`` with its vertices and faces in a canonical order.
+
+    The decomposition draws random samples over the face list and k-means seeds over them, so
+    the order of the faces and any floating-point residue of the placement would change the
+    result (a part shifted by 1 µm, or its faces shuffled, gave another branch direction).
+    Vertices are rounded to ``TOL.snap_grid`` (1 nm, far below print resolution; its
+    half-steps are not on the float32 lattice of STL coordinates, so no residue decides a
+    tie), then sorted by their projection on :data:`GENERIC` (then x, y, z); every face
+    starts at its lowest vertex (winding kept) and faces are sorted by their centroid's
+    projection, then their vertices. The result depends on the shape only (a copy rounded
+    to float32 far from the origin is another shape, by up to 6e-5 mm).
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        n vertices, m faces, in the platform frame.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        Same shape (vertices moved by at most half the grid), (n, 3) vertices and (m, 3)
+        faces in canonical order. Vertices the grid merges are welded, and faces that
+        become degenerate dropped.
+    """
+    q = TOL.snap_grid
+    verts = np.round(np.asarray(mesh.vertices, dtype=float) / q) * q + 0.0  # no -0.0
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    if len(np.unique(verts, axis=0)) < len(verts):  # sub-grid edges: weld, drop slivers
+        welded = trimesh.Trimesh(verts, faces, process=True)
+        welded.update_faces(welded.nondegenerate_faces())
+        welded.remove_unreferenced_vertices()
+        verts, faces = np.asarray(welded.vertices), np.asarray(welded.faces, dtype=np.int64)
+    order = np.lexsort((verts[:, 2], verts[:, 1], verts[:, 0], verts @ GENERIC))
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    verts, faces = verts[order], rank[faces]
+    first = np.argmin(faces, axis=1)
+    faces = faces[np.arange(len(faces))[:, None], (first[:, None] + np.arange(3)) % 3]
+    centre = verts[faces].mean(axis=1) @ GENERIC
+    faces = faces[np.lexsort((faces[:, 2], faces[:, 1], faces[:, 0], centre))]
+    return trimesh.Trimesh(verts, faces, process=False)
 
 
 def check_size(mesh: trimesh.Trimesh, name: str, build_volume: np.ndarray | None,

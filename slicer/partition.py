@@ -79,7 +79,11 @@ def analysis_mesh(mesh: trimesh.Trimesh, target_faces: int = TARGET_FACES) -> tr
         return mesh
     verts, faces = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge,
                                                     max_iter=12)
-    return trimesh.Trimesh(verts, faces, process=True)
+    from slicer.mesh_io import canonical_mesh  # mesh_io imports this module's users
+
+    # processing merges the split edges' vertices in an order that hangs on their last
+    # bits: canonical order again, so the partition depends on the shape only
+    return canonical_mesh(trimesh.Trimesh(verts, faces, process=True))
 
 
 def auto_k(mesh: trimesh.Trimesh) -> int:

@@ -167,7 +167,8 @@ def splits_clear(ctx: PieceContext, cand: Check) -> bool:
     child, rest = to_trimesh(kid), to_trimesh(others)
     obstacles = np.concatenate([surface_samples([rest], ctx.seed + 1), ctx.others])
     head = _with_clearance(ctx, EXACT_CLEARANCE).head
-    return verify_base(child, cand.plane, obstacles, head, ctx.a_limits) is None
+    return verify_base(child, cand.plane, obstacles, head, ctx.a_limits,
+                       ctx.c_limits) is None
 
 
 def _propose(best: Check, parent: ParentFrame, settings: SearchSettings,

@@ -42,7 +42,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from shapely.geometry.base import BaseGeometry
 
-from kinematics.orient import reachable_mask
+from kinematics.orient import nearest_reachable_direction, needed_pose, reachable_mask
 from slicer.printhead import Printhead
 from slicer.samples import to_manifold
 
@@ -144,6 +144,8 @@ class PieceContext:
     head : Printhead
     a_limits : (2,) float
     seed : int
+    c_limits : (2,) float or None
+        With ``a_limits``, the table angles a build direction must be reachable with.
     """
 
     mesh: trimesh.Trimesh
@@ -152,6 +154,7 @@ class PieceContext:
     head: Printhead
     a_limits: tuple[float, float]
     seed: int = 0
+    c_limits: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         m = self.mesh
@@ -176,7 +179,7 @@ def evaluate(ctx: PieceContext, plane: Plane) -> Check:
     child, tangled = _child_faces(ctx, h)
     region_area = m.area_faces[ctx.child_region].sum()
     kept = m.area_faces[child & ctx.child_region].sum()
-    reachable = bool(reachable_mask(plane.normal[None], ctx.a_limits)[0])
+    reachable = bool(reachable_mask(plane.normal[None], ctx.a_limits, ctx.c_limits)[0])
     if not child.any() or kept < KEEP_SHARE * region_area:
         return Check(plane, False, reachable, 0, False, 0.0, child, None, tangled)
     section = base_section(m, plane, child)
@@ -306,6 +309,20 @@ def perturb(plane: Plane, rng: np.random.Generator, settings: SearchSettings,
     return Plane(point, normal / np.linalg.norm(normal))
 
 
+def _reachable_step(ctx: PieceContext, plane: Plane) -> Plane:
+    """``plane`` turned to the nearest reachable normal when C is limited.
+
+    With C limits a tilted direction is reachable only within a narrow wedge of azimuths
+    (±10° of C: ±10° around ±Y), which random steps almost always leave, and tilting
+    towards +Z (what :func:`perturb` does for an unreachable normal) never enters it; so
+    the walk stays on the reachable directions. A continuous C keeps the plain step.
+    """
+    if ctx.c_limits is None:
+        return plane
+    near = nearest_reachable_direction(plane.normal, ctx.a_limits, ctx.c_limits)
+    return plane if near is None else Plane(plane.point, near)
+
+
 def _pushed_on(best: Check, cand: Check) -> bool:
     """Keep walking an invalid plane only while the child is tangled with parent material
     and the step moved the plane into the child (away from the parent)."""
@@ -342,7 +359,8 @@ def search_plane(ctx: PieceContext, start: Plane, settings: SearchSettings,
     for it in range(1, settings.max_iterations + 1):
         if it - progress > settings.stall_window:
             return best, it - 1
-        cand = _judged(ctx, perturb(best.plane, rng, settings, best), accept)
+        cand = _judged(ctx, _reachable_step(ctx, perturb(best.plane, rng, settings, best)),
+                       accept)
         if not cand.valid and not _pushed_on(best, cand):
             continue
         if best.valid and cand.area > (1.0 + settings.area_growth_max) * area0:
@@ -377,7 +395,8 @@ def _judged(ctx: PieceContext, plane: Plane, accept: Callable[[Check], bool] | N
 
 
 def verify_base(child: trimesh.Trimesh, plane: Plane, obstacles: np.ndarray, head: Printhead,
-                a_limits: tuple[float, float]) -> str | None:
+                a_limits: tuple[float, float], c_limits: tuple[float, float] | None = None
+                ) -> str | None:
     """Re-check I and II on a finished sub-part; the problem as a phrase, or None.
 
     Parameters
@@ -388,9 +407,11 @@ def verify_base(child: trimesh.Trimesh, plane: Plane, obstacles: np.ndarray, hea
         Its base plane.
     obstacles : (k, 3) float
         Surface samples of everything printed before it.
+    a_limits, c_limits : (2,) float
+        Table limits, degrees (``c_limits`` None: continuous C).
     """
-    if not reachable_mask(plane.normal[None], a_limits)[0]:
-        return "constraint II fails: the build direction is outside the A limits"
+    if not reachable_mask(plane.normal[None], a_limits, c_limits)[0]:
+        return unreachable_phrase(plane.normal, a_limits, c_limits)
     h = plane.signed(child.vertices)
     if h.min() < -1e-4 * max(1.0, child.scale):
         return "constraint II fails: the sub-part reaches below its base plane"
@@ -416,3 +437,14 @@ def _head_hits(pts: np.ndarray, plane: Plane, section: BaseGeometry,
     flat = (pts[up] - plane.point) @ plane_basis(plane.normal).T
     dist = shapely.distance(shapely.points(flat), section)
     return int((dist < head.radius_at(h[up]) + SAMPLE_SPACING).sum())
+
+
+def unreachable_phrase(direction: np.ndarray, a_limits: tuple[float, float],
+                       c_limits: tuple[float, float] | None) -> str:
+    """Why build ``direction`` (3,) cannot be printed: the angles it needs and the limits."""
+    lims = f"machine.a_limits [{a_limits[0]:g}, {a_limits[1]:g}]"
+    if c_limits is not None:
+        lims += f" / machine.c_limits [{c_limits[0]:g}, {c_limits[1]:g}]"
+    dirn = "[" + ", ".join(f"{x:.3f}" for x in direction) + "]"
+    return (f"constraint II fails: the build direction {dirn} needs {needed_pose(direction)}, "
+            f"outside {lims}")

@@ -52,6 +52,10 @@ class Tolerances:
     retry_seeds: int = 4  # further (seed, K) attempts after the configured one
     min_volume_share: float = 1e-3  # a sub-part below this share of the volume is degenerate
     min_base_share: float = 1e-3  # ... or with a base below this share of (volume)^(2/3)
+    # placement (slicer.mesh_io.canonical_mesh)
+    snap_grid: float = 1e-6  # mm: placed vertices are rounded to this grid, so the residue
+    #                          of a translation the placement undoes is gone (not a power of
+    #                          two: float32 STL coordinates would sit exactly on its half-steps)
 
 
 TOL = Tolerances()

@@ -10,7 +10,10 @@ from hypothesis import strategies as st
 from kinematics.errors import UnreachableDirection
 from kinematics.machine import MachineGeometry
 from kinematics.orient import (
+    nearest_reachable_direction,
+    needed_pose,
     orientation_solutions,
+    pose_of,
     reachable_mask,
     solve_orientation,
     solve_path,
@@ -90,18 +93,51 @@ def test_limited_c_axis_stays_within_limits() -> None:
     assert np.allclose(machine_direction(d, a, c), [0, 0, 1], atol=1e-9)
 
 
+def _solvable(d: np.ndarray, g: MachineGeometry) -> bool:
+    try:
+        solve_orientation(d, g)
+    except UnreachableDirection:
+        return False
+    return True
+
+
 def test_reachable_mask_matches_solver() -> None:
     rng = np.random.default_rng(7)
     dirs = rng.normal(size=(400, 3))
     g = MachineGeometry(a_limits=(-30.0, 75.0))
     mask = reachable_mask(dirs, g.a_limits)
-    for d, ok in zip(dirs, mask, strict=True):
-        try:
-            solve_orientation(d, g)
-            solved = True
-        except UnreachableDirection:
-            solved = False
-        assert solved == ok
+    assert [_solvable(d, g) for d in dirs] == mask.tolist()
+
+
+@pytest.mark.parametrize("c_limits", [(-10.0, 10.0), (170.0, 200.0), (-400.0, -350.0)])
+def test_reachable_mask_with_c_limits_matches_solver(c_limits) -> None:
+    rng = np.random.default_rng(8)
+    dirs = np.concatenate([rng.normal(size=(600, 3)), [[0, 0, 1], [0, 0, -1], [0, 1, 1]]])
+    g = MachineGeometry(a_limits=(-60.0, 90.0), c_limits=c_limits)
+    mask = reachable_mask(dirs, g.a_limits, g.c_limits)
+    assert [_solvable(d, g) for d in dirs] == mask.tolist()
+    assert 0 < mask.sum() < reachable_mask(dirs, g.a_limits).sum()
+
+
+def test_nearest_reachable_direction_respects_both_limits() -> None:
+    rng = np.random.default_rng(9)
+    lims = ((-90.0, 90.0), (-10.0, 10.0))
+    grid = pose_of(*np.meshgrid(np.linspace(-90, 90, 721), np.linspace(-10, 10, 161),
+                                indexing="ij")).reshape(-1, 3)
+    for d in rng.normal(size=(40, 3)):
+        d /= np.linalg.norm(d)
+        near = nearest_reachable_direction(d, *lims)
+        assert near is not None and reachable_mask(near[None], *lims)[0]
+        # no reachable direction on a fine grid is nearer (to grid resolution)
+        assert near @ d >= (grid @ d).max() - 1e-5
+    assert nearest_reachable_direction([1.0, 0.0, 1.0], (10.0, 20.0), (5.0, 4.0)) is None
+
+
+def test_pose_of_inverts_the_solutions_and_needed_pose_names_them() -> None:
+    d = _unit((1.0, 0.0, 1.0))
+    for a, c in orientation_solutions(d) or ():
+        assert np.allclose(pose_of(a, c), d, atol=1e-12)
+    assert needed_pose(d) == "A 45.0°, C 90.0° (or A -45.0°, C -90.0°)"
 
 
 def test_path_follows_c_continuously_through_full_turns() -> None:

@@ -248,6 +248,9 @@ def test_thin_wall_interface_is_solid_under_the_child(pipe2_plan) -> None:
         plane = LayerPlane(la.index, 0.0, la.origin, frame, region, below, (t, t), 0.0)
         zone = interface_zone(plane, base, S.interface_layers * t, t, S.line_width)
         iface = [p for p in la.paths if p.kind == "interface"]
+        if zone.buffer(-0.5 * S.line_width).is_empty:  # narrower than a bead: none fits
+            zone_area += zone.area  # (canonical order: layer 232, 0.22 mm², 0.3 mm wide)
+            continue
         assert iface, la.index
         beads = shapely.union_all([shapely.LineString(p.points[:, :2] - la.origin[:2])
                                    .buffer(0.5 * p.width) for p in iface])
