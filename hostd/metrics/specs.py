@@ -52,6 +52,8 @@ JOB_STATES = ("idle", "queued", "slicing", "ready", "printing", "paused", "compl
 
 SPECS: tuple[Spec, ...] = (
     Spec("hostd", "info", "Daemon version, printer and firmware identity.", "daemon.info"),
+    Spec("hostd_start_time_seconds", "gauge", "Unix time hostd started (a change is a restart: "
+         "the counters began again at 0).", "metrics.start_time_s"),
     Spec("hostd_firmware_capability", "gauge", "Firmware capabilities from M115 (1 = on).",
          "link.capabilities", label="capability"),
     Spec("hostd_job", "info", "Identity of the current (or last) job (id, name).",
@@ -80,8 +82,9 @@ SPECS: tuple[Spec, ...] = (
          "(daemon.next_job: after_clear) or the operator held the queue.", "jobs.queue.held"),
     Spec("hostd_queue_waiting_for_printer", "gauge", "1 while a ready job waits for the serial "
          "link (down or halted).", "jobs.waiting_for_printer"),
-    Spec("hostd_jobs_finished_total", "counter", "Jobs finished, by outcome.",
-         "jobs.finished", label="outcome"),
+    Spec("hostd_jobs_finished_total", "counter", "Jobs finished since hostd started, by "
+         "outcome (0 at each start, as every counter here).", "metrics.jobs_finished",
+         label="outcome"),
     Spec("hostd_slicing_duration_seconds", "histogram", "Wall time of slicing jobs.",
          "slicer.durations"),
     Spec("hostd_file_checks_total", "counter", "Files checked whole before their job is "

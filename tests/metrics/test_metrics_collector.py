@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import asyncio
+import time
 import urllib.request
 
 import pytest
@@ -38,6 +39,8 @@ def full_snapshot() -> dict:
                             "layers_total": 900, "elapsed_s": 12.0, "remaining_s": 36.0,
                             "filament_mm": 2500.0, "axes": {"A": 45.0, "C": -90.0, "X": 1}}},
         "slicer": {"durations": Buckets((1.0, 10.0)).snapshot()},
+        "metrics": {"start_time_s": 1_700_000_000.0,
+                    "jobs_finished": {"completed": 2, "failed": 0}},
     }
 
 
@@ -126,6 +129,45 @@ async def test_http_endpoint_reads_snapshot_on_the_loop() -> None:
             body = await asyncio.to_thread(lambda: urllib.request.urlopen(url, timeout=10).read())
         names = {f.name for f in text_string_to_metric_families(body.decode())}
         assert "hostd_job_progress_ratio" in names
-        assert calls and server.status()["scrapes"] == len(calls)
+        assert calls and server.status()["scrapes"] == len(calls) - 1  # and one at start
+    finally:
+        server.stop()
+
+
+async def scrape_families(server: MetricsServer) -> dict:
+    url = f"http://127.0.0.1:{server.port}/metrics"
+    async with asyncio.timeout(20):
+        body = await asyncio.to_thread(lambda: urllib.request.urlopen(url, timeout=10).read())
+    return {f.name: f for f in text_string_to_metric_families(body.decode())}
+
+
+def finished(fams: dict) -> dict[str, float]:
+    return {s.labels["outcome"]: s.value for s in fams["hostd_jobs_finished"].samples
+            if s.name == "hostd_jobs_finished_total"}
+
+
+@pytest.mark.asyncio
+async def test_jobs_finished_counts_this_run_only_and_never_goes_down() -> None:
+    """The job manager's figures start from the database's rows; the counter starts at 0
+    and only grows, even when the source drops (a job deleted, then hostd restarted)."""
+    source = {"completed": 4, "failed": 1, "cancelled": 0, "interrupted": 2}
+    snap = {"daemon": {"uptime_s": 12.5}, "jobs": {"finished": source}}
+    server = MetricsServer("127.0.0.1", 0, lambda: snap)
+    server.start()
+    try:
+        fams = await scrape_families(server)
+        assert finished(fams) == {"completed": 0, "failed": 0, "cancelled": 0,
+                                  "interrupted": 0}
+        started = fams["hostd_start_time_seconds"].samples[0].value
+        assert abs(started - (time.time() - 12.5)) < 60
+        source["completed"] = 5
+        assert finished(await scrape_families(server))["completed"] == 1
+        source["completed"] = 1  # rows deleted: the source went down
+        assert finished(await scrape_families(server))["completed"] == 1
+        source["completed"] = 2
+        fams = await scrape_families(server)
+        assert finished(fams)["completed"] == 2
+        assert fams["hostd_start_time_seconds"].samples[0].value == started
+        assert server.status()["jobs_finished"]["completed"] == 2
     finally:
         server.stop()
