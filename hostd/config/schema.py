@@ -189,7 +189,11 @@ SCHEMA: dict[str, dict[str, Field]] = {
     },
     "metrics": {
         "enabled": Flag("Serve Prometheus metrics.", True),
-        "host": Text("Metrics listen address (loopback by default).", "127.0.0.1"),
+        "host": Text("Metrics listen address (loopback by default). The systemd unit lets "
+                     "only localhost traffic through (IPAddressDeny=any, "
+                     "IPAddressAllow=localhost): for a Prometheus on another host, add its "
+                     "address in a drop-in (systemctl edit hostd.service: IPAddressAllow=ADDR).",
+                     "127.0.0.1"),
         "port": Number("Metrics TCP port.", 9464, lo=1, hi=65535, integer=True),
     },
     "sim": {
