@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import hashlib
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -262,3 +263,31 @@ async def test_print_wait_says_when_the_hold_starts_after_the_job_was_queued(tmp
     lines = out.splitlines()
     held = [i for i, line in enumerate(lines) if line.startswith("queue held: job 1 completed")]
     assert held and lines[-1].startswith("job 2 completed")
+
+
+async def hostctl_to_closed_pipe(sock: Path, *args: str) -> tuple[int, str]:
+    """hostctl with a stdout whose reader is already gone (``hostctl ... | head``)."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "hostd.cli.main", "--socket", str(sock), *args,
+            stdout=write_end, stderr=asyncio.subprocess.PIPE, cwd=str(ROOT))
+    finally:
+        os.close(write_end)
+    _, err = await proc.communicate()
+    return proc.returncode or 0, err.decode()
+
+
+@pytest.mark.asyncio
+async def test_output_to_a_reader_that_went_away_exits_quietly_with_141(tmp_path):
+    d = DaemonProc(tmp_path)
+    async with asyncio.timeout(60):
+        await d.start()
+        try:
+            for args in (("status",), ("status", "--json"), ("jobs",), ("watch",),
+                         ("watch", "--json")):
+                rc, err = await hostctl_to_closed_pipe(d.socket, *args)
+                assert (rc, err) == (141, ""), args
+        finally:
+            await d.stop()
