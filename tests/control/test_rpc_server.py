@@ -366,3 +366,19 @@ async def test_closing_with_clients_connected_leaves_nothing_for_the_loop_to_rep
     finally:
         loop.set_exception_handler(None)
     assert contexts == []
+
+
+@pytest.mark.asyncio
+async def test_a_socket_path_too_long_to_bind_names_the_problem(tmp_path):
+    """A path the config check did not see (built in code) fails with its reason, not
+    ``None`` (an OSError without an errno)."""
+    from hostd.control.server import ControlError
+
+    path = tmp_path / ("d" * 60) / ("s" * 60 + ".sock")
+    server = ControlServer(path, make_registry(), EventBus(), 4096)
+    async with asyncio.timeout(5):
+        with pytest.raises(ControlError) as caught:
+            await server.start()
+    message = str(caught.value)
+    assert message.startswith(f"{path}: cannot listen: ") and "None" not in message
+    assert "too long" in message
