@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from hostd.cli.client import Client, socket_path
-from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, CliError
+from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_REFUSED, EXIT_USAGE, CliError
 
 FINAL = {"completed", "failed", "cancelled", "interrupted"}
 PART_BYTES = 3 << 16
@@ -378,9 +378,15 @@ def cmd_send(args: argparse.Namespace) -> int:
         res = c.call("printer.gcode", timeout=600.0, script="\n".join(args.gcode))
     if args.json:
         _emit_json(res)
-        return EXIT_OK
-    for cmd, reply in zip(res["commands"], res["replies"], strict=False):
-        print(f"{cmd}: {json.dumps(reply) if not isinstance(reply, str) else reply}")
+    else:
+        for cmd, reply in zip(res["commands"], res["replies"], strict=False):
+            print(f"{cmd}: {json.dumps(reply) if not isinstance(reply, str) else reply}")
+    refused = res.get("errors") or []
+    if refused:
+        first = refused[0]
+        more = f" (and {len(refused) - 1} more)" if len(refused) > 1 else ""
+        raise CliError(f"the firmware refused {first['command']}: {first['reply']}{more}",
+                       EXIT_REFUSED)
     return EXIT_OK
 
 

@@ -291,3 +291,28 @@ async def test_output_to_a_reader_that_went_away_exits_quietly_with_141(tmp_path
                 assert (rc, err) == (141, ""), args
         finally:
             await d.stop()
+
+
+@pytest.mark.asyncio
+async def test_send_exits_by_the_documented_table(tmp_path):
+    """A command the firmware answers with an error is refused (4), also with --json; a
+    line the daemon refuses as bad params (a heater target over the limit) is bad input
+    (2); a command that runs is 0."""
+    d = DaemonProc(tmp_path)
+    async with asyncio.timeout(60):
+        await d.start()
+        try:
+            rc, out, err = await hostctl(d.socket, "send", "M42 P13 S255")
+            assert rc == 4, (out, err)
+            assert err.startswith('hostctl: the firmware refused M42 P13 S255: Unknown command')
+            rc, out, err = await hostctl(d.socket, "send", "--json", "M42 P13 S255", "M105")
+            res = json.loads(out)
+            assert rc == 4 and res["errors"] == [
+                {"command": "M42 P13 S255", "reply": 'Unknown command: "M42 P13 S255"'}]
+            assert "temperatures" in res["replies"][1]
+            rc, _, err = await hostctl(d.socket, "send", "M104 S999")
+            assert rc == 2 and "above the hotend's limit" in err
+            rc, out, _ = await hostctl(d.socket, "send", "M105")
+            assert rc == 0 and "temperatures" in out
+        finally:
+            await d.stop()
