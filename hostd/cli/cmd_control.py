@@ -12,12 +12,14 @@ import base64
 import json
 import stat
 import sys
+import unicodedata
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from hostd.cli.client import Client, socket_path
 from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_REFUSED, EXIT_USAGE, CliError
+from hostd.control.rpc import CONTROL_CATEGORIES, control_character
 
 FINAL = {"completed", "failed", "cancelled", "interrupted"}
 PART_BYTES = 3 << 16
@@ -295,7 +297,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     cur = jobs.get("current")
     if cur:
         eta = cur.get("remaining_s")
-        print(f"job {cur['id']} {cur['state']}: {cur['info']['name']}  "
+        print(f"job {cur['id']} {cur['state']}: {printable(cur['info']['name'])}  "
               f"{cur['progress'] * 100:.1f}%  sub-part {_or_dash(cur['subpart'])}  layer "
               f"{_or_dash(cur['layer'])}  ETA {'--' if eta is None else _hms(eta)}")
         if cur.get("pause_reason"):
@@ -346,9 +348,19 @@ def cmd_jobs(args: argparse.Namespace) -> int:
         print(f"({older} older jobs not shown: hostctl jobs --limit 0 lists them all)")
     for j in jobs:
         print(f"{j['id']:>4}  {j['state']:<11} {j['progress'] * 100:5.1f}%  "
-              f"line {j['acked_lines']}/{j['total_lines']}  {j['name']}"
-              + (f"  ({j['reason']})" if j.get("reason") else ""))
+              f"line {j['acked_lines']}/{j['total_lines']}  {printable(j['name'])}"
+              + (f"  ({printable(j['reason'])})" if j.get("reason") else ""))
     return EXIT_OK
+
+
+def printable(text: Any) -> str:
+    """``text`` on one line: control characters escaped (``\\n``, ``\\x1b``), as a name
+    stored before the daemon refused them would otherwise break the listing."""
+    text = str(text)
+    if control_character(text) is None:
+        return text
+    return "".join(ch.encode("unicode_escape").decode("ascii")
+                   if unicodedata.category(ch) in CONTROL_CATEGORIES else ch for ch in text)
 
 
 def _show_job(job: dict[str, Any], as_json: bool) -> None:

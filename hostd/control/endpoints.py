@@ -178,7 +178,7 @@ def build_registry(d: Daemon) -> Registry:
     reg.add("queue.start", queue_start,
             doc="the platform is clear: lift the hold, the next ready job starts")
     reg.add("queue.hold", queue_hold, doc="start no new job until queue.start")
-    reg.add("job.submit", job_submit, Param("name", "str"),
+    reg.add("job.submit", job_submit, Param("name", "str", line=True),
             Param("data", "str", required=False, doc="the file (else the job.upload parts)"),
             Param("kind", "str", required=False, choices=("stl", "gcode")),
             Param("encoding", "str", required=False, default="base64",

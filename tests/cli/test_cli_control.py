@@ -316,3 +316,25 @@ async def test_send_exits_by_the_documented_table(tmp_path):
             assert rc == 0 and "temperatures" in out
         finally:
             await d.stop()
+
+
+@pytest.mark.asyncio
+async def test_a_job_name_with_a_newline_is_refused_at_submit(tmp_path):
+    d = DaemonProc(tmp_path)
+    odd = tmp_path / "a\nWARNING fake.gcode"
+    odd.write_text(make_gcode(subparts=1, layers=1, per_layer=5))
+    async with asyncio.timeout(60):
+        await d.start()
+        try:
+            c = await d.rpc()
+            msg = await c.raw("job.submit", name="a\nWARNING fake.gcode", data="G28\n",
+                              encoding="text")
+            assert msg["error"]["code"] == -32602
+            assert "name: control character '\\n'" in msg["error"]["message"]
+            await c.close()
+            rc, _, err = await hostctl(d.socket, "print", str(odd))
+            assert rc == 2 and "control character" in err and err.count("\n") == 1
+            rc, out, _ = await hostctl(d.socket, "jobs", "--json")
+            assert rc == 0 and json.loads(out) == []
+        finally:
+            await d.stop()

@@ -382,3 +382,16 @@ async def test_a_socket_path_too_long_to_bind_names_the_problem(tmp_path):
     message = str(caught.value)
     assert message.startswith(f"{path}: cannot listen: ") and "None" not in message
     assert "too long" in message
+
+
+@pytest.mark.parametrize("name", ["a\nWARNING fake.gcode", "tab\there.gcode", "esc\x1b[2J.gcode",
+                                  "sep\u2028.gcode", "del\x7f.gcode"])
+def test_a_job_name_with_a_control_character_is_invalid_params(name):
+    from hostd.control.rpc import INVALID_PARAMS, Param, RpcError
+
+    param = Param("name", "str", line=True)
+    with pytest.raises(RpcError) as caught:
+        param.check(name)
+    assert caught.value.code == INVALID_PARAMS
+    assert caught.value.message.startswith("name: control character")
+    assert param.check("pipé 3 (v2).gcode") == "pipé 3 (v2).gcode"
