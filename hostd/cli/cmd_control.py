@@ -18,7 +18,14 @@ from pathlib import Path
 from typing import Any
 
 from hostd.cli.client import Client, socket_path
-from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_REFUSED, EXIT_USAGE, CliError
+from hostd.cli.errors import (
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_REFUSED,
+    EXIT_USAGE,
+    CliError,
+)
 from hostd.control.rpc import CONTROL_CATEGORIES, control_character
 
 FINAL = {"completed", "failed", "cancelled", "interrupted"}
@@ -78,9 +85,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.set_defaults(func=cmd_delete)
 
     p = subparsers.add_parser("estop", help="emergency stop (M112)")
+    p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_estop)
     p = subparsers.add_parser("firmware-restart",
                               help="reset the firmware and reconnect (after estop or a halt)")
+    p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_firmware_restart)
 
     p = subparsers.add_parser("queue", help="show the queue hold, or start/hold the queue "
@@ -127,9 +136,13 @@ def cmd_print(args: argparse.Namespace) -> int:
                 print(f"job {job['id']} {job['state']}: {job['name']}")
                 _say_held(c)
             return EXIT_OK
-        if not args.json:
-            _say_held(c)
-        final = _follow(c, job, args.json)
+        try:  # from here on the job exists: Ctrl-C leaves it printing, and says so
+            if not args.json:
+                _say_held(c)
+            final = _follow(c, job, args.json)
+        except KeyboardInterrupt:
+            raise CliError(f"interrupted: job {job['id']} goes on (hostctl watch follows it; "
+                           f"hostctl cancel {job['id']} stops it)", EXIT_INTERRUPTED) from None
     return EXIT_OK if final == "completed" else EXIT_FAILED
 
 
@@ -414,15 +427,21 @@ def cmd_delete(args: argparse.Namespace) -> int:
 
 def cmd_estop(args: argparse.Namespace) -> int:
     with _client(args) as c:
-        c.call("printer.estop")
-    print("emergency stop sent")
+        res = c.call("printer.estop")
+    if args.json:
+        _emit_json(res)
+    else:
+        print("emergency stop sent")
     return EXIT_OK
 
 
 def cmd_firmware_restart(args: argparse.Namespace) -> int:
     with _client(args, timeout=120.0) as c:
         res = c.call("printer.firmware_restart")
-    print(f"firmware restarted: link {res['link']}")
+    if args.json:
+        _emit_json(res)
+    else:
+        print(f"firmware restarted: link {res['link']}")
     return EXIT_OK
 
 

@@ -6,6 +6,7 @@ import asyncio
 import hashlib
 import json
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -336,5 +337,36 @@ async def test_a_job_name_with_a_newline_is_refused_at_submit(tmp_path):
             assert rc == 2 and "control character" in err and err.count("\n") == 1
             rc, out, _ = await hostctl(d.socket, "jobs", "--json")
             assert rc == 0 and json.loads(out) == []
+        finally:
+            await d.stop()
+
+
+@pytest.mark.asyncio
+async def test_ctrl_c_of_print_wait_says_the_job_goes_on_and_estop_takes_json(tmp_path):
+    d = DaemonProc(tmp_path, sim__throttle=True)
+    long = tmp_path / "long.gcode"
+    long.write_text(make_gcode(subparts=1, layers=20, per_layer=200))
+    async with asyncio.timeout(90):
+        await d.start()
+        try:
+            watcher = await d.rpc()
+            await watcher.call("events.subscribe")
+            proc = await asyncio.create_subprocess_exec(
+                sys.executable, "-m", "hostd.cli.main", "--socket", str(d.socket), "print",
+                str(long), "--wait", stdout=asyncio.subprocess.PIPE,
+                stderr=asyncio.subprocess.PIPE, cwd=str(ROOT))
+            await watcher.until(lambda e: e["event"] == "job.progress" and e["acked"] > 10)
+            proc.send_signal(signal.SIGINT)
+            _, err = await proc.communicate()
+            assert proc.returncode == 130
+            assert err.decode().strip() == ("hostctl: interrupted: job 1 goes on (hostctl "
+                                            "watch follows it; hostctl cancel 1 stops it)")
+            assert (await watcher.call("job.get", id=1))["state"] == "printing"
+            rc, out, _ = await hostctl(d.socket, "estop", "--json")
+            assert rc == 0 and json.loads(out) == {"stopped": True}
+            await watcher.until_state(1, "failed")
+            rc, out, _ = await hostctl(d.socket, "firmware-restart", "--json")
+            assert rc == 0 and json.loads(out) == {"link": "ready"}
+            await watcher.close()
         finally:
             await d.stop()
