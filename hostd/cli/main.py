@@ -15,9 +15,8 @@ from collections.abc import Sequence
 
 import hostd.cli
 from hostd import __version__
+from hostd.cli.client import DEFAULT_SOCKET
 from hostd.cli.errors import EXIT_INTERRUPTED, EXIT_PIPE, EXIT_USAGE, CliError
-
-DEFAULT_SOCKET = "/run/hostd/hostd.sock"
 
 
 def _socket_arg(text: str) -> str:

@@ -42,6 +42,10 @@ def _kind(node: yaml.Node) -> str:
 
 
 def _fmt(x: float) -> str:
+    """A bound or value as written: whole numbers in full (``2147483647``, not
+    ``2.14748e+09``), others as short as they go."""
+    if float(x).is_integer() and abs(x) < 1e15:
+        return str(int(x))
     return f"{x:g}"
 
 

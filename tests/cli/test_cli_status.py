@@ -65,3 +65,14 @@ def test_jobs_prints_a_name_with_control_characters_on_one_line(monkeypatch, cap
     assert out.count("\n") == 1 and "\x1b" not in out and "\r" not in out
     assert "a\\nWARNING fake.gcode\\x1b[2J\\u2028  (done\\r)" in out
     assert cmd_control.printable("pipé 3.stl") == "pipé 3.stl"
+
+
+def test_the_default_socket_is_defined_once() -> None:
+    from pathlib import Path
+
+    import hostd.cli
+    from hostd.cli import client, main
+
+    assert main.DEFAULT_SOCKET is client.DEFAULT_SOCKET
+    sources = [p.read_text() for p in Path(hostd.cli.__file__).parent.glob("*.py")]
+    assert sum(s.count('"/run/hostd/hostd.sock"') for s in sources) == 1
