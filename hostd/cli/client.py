@@ -11,7 +11,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from hostd.cli.errors import EXIT_REFUSED, EXIT_UNREACHABLE, EXIT_USAGE, CliError
-from hostd.control.rpc import UPLOAD_REJECTED
+from hostd.control.rpc import INVALID_PARAMS, UPLOAD_REJECTED
 
 DEFAULT_SOCKET = "/run/hostd/hostd.sock"
 
@@ -20,12 +20,17 @@ def socket_path(arg: str | None) -> str:
     return arg or os.environ.get("HOSTD_SOCKET") or DEFAULT_SOCKET
 
 
+BAD_INPUT = frozenset({UPLOAD_REJECTED, INVALID_PARAMS})
+"""JSON-RPC error codes that mean the input was bad (exit 2), not refused (exit 4)."""
+
+
 class RpcFailure(CliError):
     """The daemon answered with a JSON-RPC error."""
 
     def __init__(self, code: int, message: str) -> None:
-        # a refused upload is a bad input file (exit 2); the rest are refusals (exit 4)
-        super().__init__(message, EXIT_USAGE if code == UPLOAD_REJECTED else EXIT_REFUSED)
+        # a refused upload or bad params (a raw G-code line the daemon refuses: a heater
+        # target over its limit, M112) is bad input (exit 2); the rest are refusals (exit 4)
+        super().__init__(message, EXIT_USAGE if code in BAD_INPUT else EXIT_REFUSED)
         self.rpc_code = code
 
 

@@ -12,12 +12,21 @@ import base64
 import json
 import stat
 import sys
+import unicodedata
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from hostd.cli.client import Client, socket_path
-from hostd.cli.errors import EXIT_FAILED, EXIT_OK, EXIT_USAGE, CliError
+from hostd.cli.errors import (
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_REFUSED,
+    EXIT_USAGE,
+    CliError,
+)
+from hostd.control.rpc import CONTROL_CATEGORIES, control_character
 
 FINAL = {"completed", "failed", "cancelled", "interrupted"}
 PART_BYTES = 3 << 16
@@ -76,9 +85,11 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.set_defaults(func=cmd_delete)
 
     p = subparsers.add_parser("estop", help="emergency stop (M112)")
+    p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_estop)
     p = subparsers.add_parser("firmware-restart",
                               help="reset the firmware and reconnect (after estop or a halt)")
+    p.add_argument("--json", action="store_true")
     p.set_defaults(func=cmd_firmware_restart)
 
     p = subparsers.add_parser("queue", help="show the queue hold, or start/hold the queue "
@@ -125,9 +136,13 @@ def cmd_print(args: argparse.Namespace) -> int:
                 print(f"job {job['id']} {job['state']}: {job['name']}")
                 _say_held(c)
             return EXIT_OK
-        if not args.json:
-            _say_held(c)
-        final = _follow(c, job, args.json)
+        try:  # from here on the job exists: Ctrl-C leaves it printing, and says so
+            if not args.json:
+                _say_held(c)
+            final = _follow(c, job, args.json)
+        except KeyboardInterrupt:
+            raise CliError(f"interrupted: job {job['id']} goes on (hostctl watch follows it; "
+                           f"hostctl cancel {job['id']} stops it)", EXIT_INTERRUPTED) from None
     return EXIT_OK if final == "completed" else EXIT_FAILED
 
 
@@ -295,7 +310,7 @@ def cmd_status(args: argparse.Namespace) -> int:
     cur = jobs.get("current")
     if cur:
         eta = cur.get("remaining_s")
-        print(f"job {cur['id']} {cur['state']}: {cur['info']['name']}  "
+        print(f"job {cur['id']} {cur['state']}: {printable(cur['info']['name'])}  "
               f"{cur['progress'] * 100:.1f}%  sub-part {_or_dash(cur['subpart'])}  layer "
               f"{_or_dash(cur['layer'])}  ETA {'--' if eta is None else _hms(eta)}")
         if cur.get("pause_reason"):
@@ -346,9 +361,19 @@ def cmd_jobs(args: argparse.Namespace) -> int:
         print(f"({older} older jobs not shown: hostctl jobs --limit 0 lists them all)")
     for j in jobs:
         print(f"{j['id']:>4}  {j['state']:<11} {j['progress'] * 100:5.1f}%  "
-              f"line {j['acked_lines']}/{j['total_lines']}  {j['name']}"
-              + (f"  ({j['reason']})" if j.get("reason") else ""))
+              f"line {j['acked_lines']}/{j['total_lines']}  {printable(j['name'])}"
+              + (f"  ({printable(j['reason'])})" if j.get("reason") else ""))
     return EXIT_OK
+
+
+def printable(text: Any) -> str:
+    """``text`` on one line: control characters escaped (``\\n``, ``\\x1b``), as a name
+    stored before the daemon refused them would otherwise break the listing."""
+    text = str(text)
+    if control_character(text) is None:
+        return text
+    return "".join(ch.encode("unicode_escape").decode("ascii")
+                   if unicodedata.category(ch) in CONTROL_CATEGORIES else ch for ch in text)
 
 
 def _show_job(job: dict[str, Any], as_json: bool) -> None:
@@ -378,9 +403,15 @@ def cmd_send(args: argparse.Namespace) -> int:
         res = c.call("printer.gcode", timeout=600.0, script="\n".join(args.gcode))
     if args.json:
         _emit_json(res)
-        return EXIT_OK
-    for cmd, reply in zip(res["commands"], res["replies"], strict=False):
-        print(f"{cmd}: {json.dumps(reply) if not isinstance(reply, str) else reply}")
+    else:
+        for cmd, reply in zip(res["commands"], res["replies"], strict=False):
+            print(f"{cmd}: {json.dumps(reply) if not isinstance(reply, str) else reply}")
+    refused = res.get("errors") or []
+    if refused:
+        first = refused[0]
+        more = f" (and {len(refused) - 1} more)" if len(refused) > 1 else ""
+        raise CliError(f"the firmware refused {first['command']}: {first['reply']}{more}",
+                       EXIT_REFUSED)
     return EXIT_OK
 
 
@@ -396,15 +427,21 @@ def cmd_delete(args: argparse.Namespace) -> int:
 
 def cmd_estop(args: argparse.Namespace) -> int:
     with _client(args) as c:
-        c.call("printer.estop")
-    print("emergency stop sent")
+        res = c.call("printer.estop")
+    if args.json:
+        _emit_json(res)
+    else:
+        print("emergency stop sent")
     return EXIT_OK
 
 
 def cmd_firmware_restart(args: argparse.Namespace) -> int:
     with _client(args, timeout=120.0) as c:
         res = c.call("printer.firmware_restart")
-    print(f"firmware restarted: link {res['link']}")
+    if args.json:
+        _emit_json(res)
+    else:
+        print(f"firmware restarted: link {res['link']}")
     return EXIT_OK
 
 

@@ -8,15 +8,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import pkgutil
 import sys
 from collections.abc import Sequence
 
 import hostd.cli
 from hostd import __version__
-from hostd.cli.errors import EXIT_USAGE, CliError
-
-DEFAULT_SOCKET = "/run/hostd/hostd.sock"
+from hostd.cli.client import DEFAULT_SOCKET
+from hostd.cli.errors import EXIT_INTERRUPTED, EXIT_PIPE, EXIT_USAGE, CliError
 
 
 def _socket_arg(text: str) -> str:
@@ -44,13 +44,29 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # here, where a reader gone is caught, not at the exit
+        return code
     except CliError as exc:
         print(f"hostctl: {exc}", file=sys.stderr)
         return exc.code
     except KeyboardInterrupt:
         print("hostctl: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        return _reader_gone()
+
+
+def _reader_gone() -> int:
+    """stdout's reader went away (``hostctl watch | head -1``): exit quietly, as a command
+    killed by SIGPIPE would. stdout now points at /dev/null, so the flush at exit of what
+    is still buffered does not fail a second time."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, sys.stdout.fileno())
+    finally:
+        os.close(devnull)
+    return EXIT_PIPE
 
 
 if __name__ == "__main__":  # pragma: no cover

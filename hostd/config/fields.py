@@ -42,6 +42,10 @@ def _kind(node: yaml.Node) -> str:
 
 
 def _fmt(x: float) -> str:
+    """A bound or value as written: whole numbers in full (``2147483647``, not
+    ``2.14748e+09``), others as short as they go."""
+    if float(x).is_integer() and abs(x) < 1e15:
+        return str(int(x))
     return f"{x:g}"
 
 
@@ -116,8 +120,12 @@ class Flag(Field):
 
 @dataclass(frozen=True)
 class Text(Field):
+    """A string; ``path`` asks for a non-blank one of at most ``max_bytes`` (UTF-8)."""
+
     choices: Sequence[str] = ()
     multiline: bool = False
+    path: bool = False
+    max_bytes: int | None = None
 
     def convert(self, node: yaml.Node) -> str:
         value = _scalar(node)
@@ -127,10 +135,25 @@ class Text(Field):
             raise FieldError(f"{value!r} is not one of {', '.join(self.choices)}")
         if not self.multiline and "\n" in value.strip():
             raise FieldError("must be a single line")
+        if self.path:
+            _check_path(value, self.max_bytes)
         return value
 
     def describe(self) -> str:
-        return " | ".join(self.choices) if self.choices else "string"
+        if self.choices:
+            return " | ".join(self.choices)
+        if self.path:
+            return "path" + (f" of at most {self.max_bytes} bytes" if self.max_bytes else "")
+        return "string"
+
+
+def _check_path(value: str, max_bytes: int | None) -> None:
+    if not value.strip():
+        raise FieldError("must not be empty (a path)")
+    size = len(value.encode("utf-8", "surrogateescape"))
+    if max_bytes is not None and size > max_bytes:
+        raise FieldError(f"{value!r} is {size} bytes long, more than the {max_bytes} a "
+                         "Unix socket path may have")
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,9 @@ from __future__ import annotations
 
 from hostd.config.fields import Field, Flag, Number, Records, Text, Vector
 
+UNIX_SOCKET_PATH_MAX = 108
+"""Bytes of a Unix socket path on Linux (``sun_path``); a longer one cannot be bound."""
+
 DEFAULT_START_GCODE = """\
 G28
 M140 S{bed_temperature}
@@ -176,9 +179,10 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                         lo=0.0, hi=100.0),
     },
     "daemon": {
-        "socket": Text("Path of the JSON-RPC control socket.", "/run/hostd/hostd.sock"),
+        "socket": Text("Path of the JSON-RPC control socket.", "/run/hostd/hostd.sock",
+                       path=True, max_bytes=UNIX_SOCKET_PATH_MAX),
         "state_dir": Text("Directory of the job database and the upload spool.",
-                          "/var/lib/hostd"),
+                          "/var/lib/hostd", path=True),
         "max_upload_bytes": Number("Largest accepted upload, bytes.", 64 * 1024 * 1024,
                                    lo=1024, hi=2**34, integer=True),
         "log_level": Text("Logging level.", "info", choices=("debug", "info", "warning",
@@ -190,7 +194,11 @@ SCHEMA: dict[str, dict[str, Field]] = {
     },
     "metrics": {
         "enabled": Flag("Serve Prometheus metrics.", True),
-        "host": Text("Metrics listen address (loopback by default).", "127.0.0.1"),
+        "host": Text("Metrics listen address (loopback by default). The systemd unit lets "
+                     "only localhost traffic through (IPAddressDeny=any, "
+                     "IPAddressAllow=localhost): for a Prometheus on another host, add its "
+                     "address in a drop-in (systemctl edit hostd.service: IPAddressAllow=ADDR).",
+                     "127.0.0.1"),
         "port": Number("Metrics TCP port.", 9464, lo=1, hi=65535, integer=True),
     },
     "sim": {

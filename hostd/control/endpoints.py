@@ -23,7 +23,7 @@ from hostd.control.server import Client
 from hostd.control.upload import PartUploads, write_base64
 from hostd.jobs.spool import Staged
 from hostd.jobs.states import JobState, JobStateError, parse_state
-from hostd.link.replies import Ok, Position, Temperatures
+from hostd.link.replies import Echo, ErrorReply, Ok, Position, Temperatures
 from hostd.printer.errors import ProgramError
 from hostd.printer.program import parse_program
 
@@ -72,8 +72,10 @@ def build_registry(d: Daemon) -> Registry:
             if unsafe:
                 raise PrinterBusy(f"refused while printing: {unsafe[0]} (allowed: "
                                   f"{' '.join(sorted(SAFE_WHILE_PRINTING))})")
-        replies = [_reply(await d.link.query(c)) for c in commands]
-        return {"commands": commands, "replies": replies}
+        raw = [await d.link.query(c) for c in commands]
+        return {"commands": commands, "replies": [_reply(r) for r in raw],
+                "errors": [{"command": c, "reply": str(getattr(r, "text", r))}
+                           for c, r in zip(commands, raw, strict=True) if _refused(r)]}
 
     async def printer_firmware_restart(ctx: Client) -> dict[str, Any]:
         return await d.firmware_restart()
@@ -176,7 +178,7 @@ def build_registry(d: Daemon) -> Registry:
     reg.add("queue.start", queue_start,
             doc="the platform is clear: lift the hold, the next ready job starts")
     reg.add("queue.hold", queue_hold, doc="start no new job until queue.start")
-    reg.add("job.submit", job_submit, Param("name", "str"),
+    reg.add("job.submit", job_submit, Param("name", "str", line=True),
             Param("data", "str", required=False, doc="the file (else the job.upload parts)"),
             Param("kind", "str", required=False, choices=("stl", "gcode")),
             Param("encoding", "str", required=False, default="base64",
@@ -236,6 +238,18 @@ def _resumable(d: Daemon) -> int:
     if not jobs:
         raise JobStateError("no paused or interrupted job; give an id")
     return jobs[-1].id
+
+
+REFUSALS = ("unknown command",)
+"""How an ``echo:`` reply of Marlin's starts when it did not run the command."""
+
+
+def _refused(reply: Any) -> bool:
+    """Whether the firmware answered a raw command with an error: an ``Error:`` line, or an
+    ``echo:Unknown command``."""
+    if isinstance(reply, ErrorReply):
+        return True
+    return isinstance(reply, Echo) and reply.text.lower().startswith(REFUSALS)
 
 
 def _reply(reply: Any) -> Any:

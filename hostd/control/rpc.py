@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import unicodedata
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -116,6 +117,8 @@ class Param:
     default: Any = None
     choices: tuple[Any, ...] | None = None
     doc: str = ""
+    line: bool = False
+    """A string shown as one line of text (a job name): no control characters."""
 
     def check(self, value: Any) -> Any:
         types = _TYPES[self.type]
@@ -128,6 +131,8 @@ class Param:
                            f"{self.name}: expected {self.type}, got {type(value).__name__}")
         if isinstance(value, str) and not value.isascii():
             _check_text(self.name, value)
+        if isinstance(value, str) and self.line:
+            _check_line(self.name, value)
         if isinstance(value, int) and not -INT_LIMIT <= value < INT_LIMIT:
             raise RpcError(INVALID_PARAMS, f"{self.name}: {value} is out of range")
         if self.choices is not None and value not in self.choices:
@@ -144,6 +149,24 @@ def _check_text(name: str, value: str) -> None:
     except UnicodeEncodeError as exc:
         raise RpcError(INVALID_PARAMS, f"{name}: not Unicode text (a lone surrogate at "
                        f"character {exc.start})") from None
+
+
+CONTROL_CATEGORIES = frozenset({"Cc", "Zl", "Zp"})
+"""Unicode categories that break a line of text: C0/C1 controls (newline, tab, escape, DEL)
+and the line and paragraph separators."""
+
+
+def control_character(text: str) -> int | None:
+    """The index of the first control character in ``text``, or ``None``."""
+    return next((i for i, ch in enumerate(text)
+                 if unicodedata.category(ch) in CONTROL_CATEGORIES), None)
+
+
+def _check_line(name: str, value: str) -> None:
+    at = control_character(value)
+    if at is not None:
+        raise RpcError(INVALID_PARAMS, f"{name}: control character {value[at]!r} at "
+                       f"character {at} (it must be one line of printable text)")
 
 
 Handler = Callable[..., Awaitable[Any]]

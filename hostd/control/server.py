@@ -32,6 +32,18 @@ class ControlError(Exception):
     """The control socket cannot be set up (path taken by a live daemon, not writable, ...)."""
 
 
+def _why(exc: OSError, path: Path) -> str:
+    """The reason of ``exc`` in a few words: the system's, the ancestor of ``path`` that is
+    no directory, or the text of an error without an errno (a path too long to bind)."""
+    if isinstance(exc, NotADirectoryError | FileExistsError):
+        blocker = next((p for p in path.parents if p.exists() and not p.is_dir()), None)
+        if blocker is not None:
+            return f"{blocker} is not a directory"
+    if exc.strerror:
+        return exc.strerror
+    return str(exc) or type(exc).__name__
+
+
 class Client:
     """One connection: its id, its event subscription and its outgoing queue."""
 
@@ -104,14 +116,17 @@ class ControlServer:
         if sock is not None:
             await self._adopt(sock)
             return
-        await self._remove_stale()
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            await self._remove_stale()
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise ControlError(f"{self.path}: cannot use: {_why(exc, self.path)}") from None
         old = os.umask(0o117)  # the socket is born 0660: no window with wider permissions
         try:
             self._server = await asyncio.start_unix_server(
                 self._serve, path=str(self.path), limit=self.max_message)
         except OSError as exc:
-            raise ControlError(f"{self.path}: cannot listen: {exc.strerror}") from None
+            raise ControlError(f"{self.path}: cannot listen: {_why(exc, self.path)}") from None
         finally:
             os.umask(old)
         os.chmod(self.path, SOCKET_MODE)

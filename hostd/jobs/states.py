@@ -5,8 +5,11 @@
     queued → slicing → ready → printing ⇄ paused → completed | failed | cancelled | interrupted
 
 G-code uploads skip ``slicing`` (``queued → ready``). ``interrupted`` is what a job that was
-printing or paused becomes when the daemon died under it; it can be resumed (→ ``printing``) or
-cancelled. A job caught in ``slicing`` by a crash goes back to ``queued`` (nothing is lost).
+printing or paused becomes when it stopped through no fault of its own: hostd stopped (SIGTERM)
+or died under it (found at the next start), the firmware reset mid-print (a banner on an open
+port), or the serial link was lost (no ok even after the nudges, the port gone). It can be
+resumed (→ ``printing``) or cancelled. A job caught in ``slicing`` by a crash goes back to
+``queued`` (nothing is lost).
 """
 
 from __future__ import annotations
@@ -59,10 +62,12 @@ def parse_state(value: str) -> JobState:
 
 
 def check_transition(old: JobState, new: JobState) -> None:
-    """Raise :class:`JobStateError` unless ``old → new`` is allowed."""
-    if new not in ALLOWED[old]:
+    """Raise :class:`JobStateError` unless ``old → new`` is allowed (every state change goes
+    through it: :meth:`hostd.jobs.store.JobStore.transition`)."""
+    if not can_transition(old, new):
         raise JobStateError(f"cannot go from {old} to {new}")
 
 
 def can_transition(old: JobState, new: JobState) -> bool:
+    """Whether ``old → new`` is allowed."""
     return new in ALLOWED[old]

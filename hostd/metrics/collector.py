@@ -16,11 +16,10 @@ from prometheus_client.core import (
     HistogramMetricFamily,
     InfoMetricFamily,
     Metric,
-    StateSetMetricFamily,
 )
 from prometheus_client.registry import Collector, CollectorRegistry
 
-from hostd.metrics.specs import JOB_STATES, SPECS, Spec
+from hostd.metrics.specs import SPECS, Spec
 
 Snapshot = Mapping[str, Any]
 
@@ -96,9 +95,16 @@ def _info_family(spec: Spec, value: Any) -> Metric | None:
 
 
 def _stateset_family(spec: Spec, value: Any) -> Metric | None:
-    state = "idle" if value is None else str(value)
-    return StateSetMetricFamily(spec.name, spec.doc,
-                                value={s: s == state for s in JOB_STATES})
+    """One gauge per state, labelled ``spec.label`` (``state``), 1 for the current one.
+
+    Exported as a gauge: OpenMetrics' stateset type would name the label after the metric
+    (``hostd_job_state="printing"``), not ``state`` as the README documents."""
+    states = spec.keys or ()
+    current = states[0] if value is None and states else str(value)
+    fam = GaugeMetricFamily(spec.name, spec.doc, labels=[spec.label or "state"])
+    for state in states:
+        fam.add_metric([state], 1.0 if state == current else 0.0)
+    return fam
 
 
 _BUILDERS: dict[str, Callable[[Spec, Any], Metric | None]] = {

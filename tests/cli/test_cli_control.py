@@ -3,10 +3,15 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import json
+import os
+import signal
 import sys
+from collections.abc import AsyncIterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -262,3 +267,100 @@ async def test_print_wait_says_when_the_hold_starts_after_the_job_was_queued(tmp
     lines = out.splitlines()
     held = [i for i, line in enumerate(lines) if line.startswith("queue held: job 1 completed")]
     assert held and lines[-1].startswith("job 2 completed")
+
+
+@contextlib.asynccontextmanager
+async def running(tmp_path: Path, **overrides: Any) -> AsyncIterator[DaemonProc]:
+    """A hostd subprocess, started, and stopped at the end."""
+    d = DaemonProc(tmp_path, **overrides)
+    await d.start()
+    try:
+        yield d
+    finally:
+        await d.stop()
+
+
+async def hostctl_to_closed_pipe(sock: Path, *args: str) -> tuple[int, str]:
+    """hostctl with a stdout whose reader is already gone (``hostctl ... | head``)."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "hostd.cli.main", "--socket", str(sock), *args,
+            stdout=write_end, stderr=asyncio.subprocess.PIPE, cwd=str(ROOT))
+    finally:
+        os.close(write_end)
+    _, err = await proc.communicate()
+    return proc.returncode or 0, err.decode()
+
+
+@pytest.mark.asyncio
+async def test_output_to_a_reader_that_went_away_exits_quietly_with_141(tmp_path):
+    async with asyncio.timeout(60), running(tmp_path) as d:
+        for args in (("status",), ("status", "--json"), ("jobs",), ("watch",),
+                     ("watch", "--json")):
+            rc, err = await hostctl_to_closed_pipe(d.socket, *args)
+            assert (rc, err) == (141, ""), args
+
+
+@pytest.mark.asyncio
+async def test_send_exits_by_the_documented_table(tmp_path):
+    """A command the firmware answers with an error is refused (4), also with --json; a
+    line the daemon refuses as bad params (a heater target over the limit) is bad input
+    (2); a command that runs is 0."""
+    async with asyncio.timeout(60), running(tmp_path) as d:
+        rc, out, err = await hostctl(d.socket, "send", "M42 P13 S255")
+        assert rc == 4, (out, err)
+        assert err.startswith('hostctl: the firmware refused M42 P13 S255: Unknown command')
+        rc, out, err = await hostctl(d.socket, "send", "--json", "M42 P13 S255", "M105")
+        res = json.loads(out)
+        assert rc == 4 and res["errors"] == [
+            {"command": "M42 P13 S255", "reply": 'Unknown command: "M42 P13 S255"'}]
+        assert "temperatures" in res["replies"][1]
+        rc, _, err = await hostctl(d.socket, "send", "M104 S999")
+        assert rc == 2 and "above the hotend's limit" in err
+        rc, out, _ = await hostctl(d.socket, "send", "M105")
+        assert rc == 0 and "temperatures" in out
+
+
+@pytest.mark.asyncio
+async def test_a_job_name_with_a_newline_is_refused_at_submit(tmp_path):
+    odd = tmp_path / "a\nWARNING fake.gcode"
+    odd.write_text(make_gcode(subparts=1, layers=1, per_layer=5))
+    async with asyncio.timeout(60), running(tmp_path) as d:
+        c = await d.rpc()
+        msg = await c.raw("job.submit", name="a\nWARNING fake.gcode", data="G28\n",
+                          encoding="text")
+        assert msg["error"]["code"] == -32602
+        assert "name: control character '\\n'" in msg["error"]["message"]
+        await c.close()
+        rc, _, err = await hostctl(d.socket, "print", str(odd))
+        assert rc == 2 and "control character" in err and err.count("\n") == 1
+        rc, out, _ = await hostctl(d.socket, "jobs", "--json")
+        assert rc == 0 and json.loads(out) == []
+
+
+@pytest.mark.asyncio
+async def test_ctrl_c_of_print_wait_says_the_job_goes_on_and_estop_takes_json(tmp_path):
+    long = tmp_path / "long.gcode"
+    long.write_text(make_gcode(subparts=1, layers=20, per_layer=200))
+    async with asyncio.timeout(90), running(tmp_path, sim__throttle=True) as d:
+        watcher = await d.rpc()
+        await watcher.call("events.subscribe")
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "hostd.cli.main", "--socket", str(d.socket), "print",
+            str(long), "--wait", stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE, cwd=str(ROOT))
+        await watcher.until(lambda e: e["event"] == "job.progress" and e["acked"] > 10)
+        proc.send_signal(signal.SIGINT)
+        _, err = await proc.communicate()
+        assert proc.returncode == 130
+        assert err.decode().strip() == ("hostctl: interrupted: job 1 goes on (hostctl "
+                                        "watch follows it; hostctl cancel 1 stops it)")
+        assert (await watcher.call("job.get", id=1))["state"] == "printing"
+        rc, out, _ = await hostctl(d.socket, "estop", "--json")
+        assert rc == 0 and json.loads(out) == {"stopped": True}
+        await watcher.until_state(1, "failed")
+        rc, out, _ = await hostctl(d.socket, "firmware-restart", "--json")
+        assert rc == 0 and json.loads(out) == {"link": "ready"}
+        await watcher.close()

@@ -33,3 +33,46 @@ def test_an_empty_socket_path_is_refused() -> None:
     with pytest.raises(SystemExit) as done:
         build_parser().parse_args(["--socket", "", "status"])
     assert done.value.code == 2
+
+
+class FakeClient:
+    """Answers job.list with the jobs given (names as a database might hold them)."""
+
+    def __init__(self, jobs: list[dict]) -> None:
+        self.jobs = jobs
+
+    def __enter__(self) -> FakeClient:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        return None
+
+    def call(self, method: str, **params: object) -> dict:
+        assert method == "job.list"
+        return {"jobs": self.jobs, "total": len(self.jobs)}
+
+
+def test_jobs_prints_a_name_with_control_characters_on_one_line(monkeypatch, capsys) -> None:
+    import argparse
+
+    from hostd.cli import cmd_control
+
+    job = {"id": 1, "state": "completed", "progress": 1.0, "acked_lines": 3, "total_lines": 3,
+           "name": "a\nWARNING fake.gcode\x1b[2J\u2028", "reason": "done\r"}
+    monkeypatch.setattr(cmd_control, "_client", lambda args: FakeClient([job]))
+    assert cmd_control.cmd_jobs(argparse.Namespace(limit=20, json=False)) == 0
+    out = capsys.readouterr().out
+    assert out.count("\n") == 1 and "\x1b" not in out and "\r" not in out
+    assert "a\\nWARNING fake.gcode\\x1b[2J\\u2028  (done\\r)" in out
+    assert cmd_control.printable("pipé 3.stl") == "pipé 3.stl"
+
+
+def test_the_default_socket_is_defined_once() -> None:
+    from pathlib import Path
+
+    import hostd.cli
+    from hostd.cli import client, main
+
+    assert main.DEFAULT_SOCKET is client.DEFAULT_SOCKET
+    sources = [p.read_text() for p in Path(hostd.cli.__file__).parent.glob("*.py")]
+    assert sum(s.count('"/run/hostd/hostd.sock"') for s in sources) == 1

@@ -186,3 +186,13 @@ def test_every_placeholder_the_loader_accepts_is_one_the_daemon_can_fill() -> No
         text = script.format_map({**settings.end_values, "safe_z": "1.000"})
         assert "{" not in text and text != script, name
     assert settings.end_values["nozzle_temperature"] == defaults()["process.nozzle_temperature"]
+
+
+def test_integer_ranges_are_written_in_full_in_the_docs() -> None:
+    """The generated table shows 2147483647 and 4000000, not 2.14748e+09 and 4e+06."""
+    from hostd.config.docs import render_markdown
+    from hostd.config.schema import SCHEMA
+
+    assert SCHEMA["serial"]["baud"].describe() == "integer in [1200, 4000000]"
+    assert SCHEMA["sim"]["seed"].describe() == "integer in [0, 2147483647]"
+    assert "e+" not in render_markdown()

@@ -366,3 +366,32 @@ async def test_closing_with_clients_connected_leaves_nothing_for_the_loop_to_rep
     finally:
         loop.set_exception_handler(None)
     assert contexts == []
+
+
+@pytest.mark.asyncio
+async def test_a_socket_path_too_long_to_bind_names_the_problem(tmp_path):
+    """A path the config check did not see (built in code) fails with its reason, not
+    ``None`` (an OSError without an errno)."""
+    from hostd.control.server import ControlError
+
+    path = tmp_path / ("d" * 60) / ("s" * 60 + ".sock")
+    server = ControlServer(path, make_registry(), EventBus(), 4096)
+    async with asyncio.timeout(5):
+        with pytest.raises(ControlError) as caught:
+            await server.start()
+    message = str(caught.value)
+    assert message.startswith(f"{path}: cannot listen: ") and "None" not in message
+    assert "too long" in message
+
+
+@pytest.mark.parametrize("name", ["a\nWARNING fake.gcode", "tab\there.gcode", "esc\x1b[2J.gcode",
+                                  "sep\u2028.gcode", "del\x7f.gcode"])
+def test_a_job_name_with_a_control_character_is_invalid_params(name):
+    from hostd.control.rpc import INVALID_PARAMS, Param, RpcError
+
+    param = Param("name", "str", line=True)
+    with pytest.raises(RpcError) as caught:
+        param.check(name)
+    assert caught.value.code == INVALID_PARAMS
+    assert caught.value.message.startswith("name: control character")
+    assert param.check("pipé 3 (v2).gcode") == "pipé 3 (v2).gcode"

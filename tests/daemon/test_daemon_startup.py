@@ -109,3 +109,35 @@ async def test_the_link_supervisor_does_not_reset_a_link_a_restart_connected():
     async with asyncio.timeout(10):
         await daemon._link_supervisor()
     assert link.connects == 0
+
+
+def _run_hostd(tmp_path: Path, socket: str) -> subprocess.CompletedProcess[str]:
+    config = tmp_path / "hostd.yaml"
+    config.write_text(yaml.safe_dump({
+        "daemon": {"socket": socket, "state_dir": str(tmp_path / "state")},
+        "metrics": {"enabled": False}, "serial": {"port": "sim://"}}))
+    return subprocess.run([sys.executable, "-m", "hostd.main", "--config", str(config)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=50, check=False)
+
+
+@pytest.mark.timeout(60)
+def test_a_socket_path_under_a_regular_file_is_a_one_line_error(tmp_path: Path):
+    (tmp_path / "afile").write_text("a file, not a directory")
+    sock = tmp_path / "afile" / "h.sock"
+    done = _run_hostd(tmp_path, str(sock))
+    assert done.returncode == 1, done.stderr
+    assert "Traceback" not in done.stderr
+    errors = [line for line in done.stderr.splitlines() if "ERROR" in line]
+    assert len(errors) == 1, done.stderr
+    assert str(sock) in errors[0] and f"{tmp_path / 'afile'} is not a directory" in errors[0]
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("socket", ["", "   ", "/tmp/" + "s" * 120 + ".sock"])
+def test_an_empty_or_too_long_socket_path_is_refused_at_config_load(tmp_path: Path,
+                                                                    socket: str):
+    done = _run_hostd(tmp_path, socket)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "daemon.socket" in lines[0], done.stderr
+    assert "must not be empty" in lines[0] if not socket.strip() else "bytes long" in lines[0]

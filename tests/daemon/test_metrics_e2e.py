@@ -83,7 +83,7 @@ def by_label(fams: dict[str, Metric], name: str, label: str) -> dict[str, float]
 def has_source(status: dict[str, Any], spec: Spec) -> bool:
     src = lookup(status, spec.path)
     if spec.kind == "stateset":
-        return True  # no job is "idle"
+        return True  # nothing is the first state ("idle")
     if spec.label is None or src is None:
         return src is not None
     return any(k in src for k in (spec.keys or src))
@@ -134,9 +134,10 @@ async def test_metrics_during_a_print(daemon_factory):
         c = await d.rpc()
         await c.call("events.subscribe", events=["job.progress", "job.state"])
         idle = await families(port)
-        assert value(idle, "hostd_job_state", hostd_job_state="idle") == 1
+        assert value(idle, "hostd_job_state", state="idle") == 1
         assert "hostd_job_progress_ratio" not in idle
         assert value(idle, "hostd_serial_link_up") == 1
+        assert value(idle, "hostd_serial_link_state", state="ready") == 1
 
         job = await c.submit_text("m.gcode", make_gcode(subparts=3, layers=3, per_layer=80))
         seen = await watch_progress(c, port, job["id"])
@@ -145,8 +146,10 @@ async def test_metrics_during_a_print(daemon_factory):
         # the finished job stays visible: progress 1, state completed, counted once
         fams = await families(port)
         assert value(fams, "hostd_job_progress_ratio") == 1.0
-        assert value(fams, "hostd_job_state", hostd_job_state="completed") == 1
+        assert value(fams, "hostd_job_state", state="completed") == 1
         assert value(fams, "hostd_jobs_finished", outcome="completed") == 1
+        assert value(fams, "hostd_jobs", state="completed") == 1
+        assert value(fams, "hostd_jobs", state="queued") == 0
         assert value(fams, "hostd_transitions") == 2
         assert value(fams, "hostd_job_subparts") == 3
         assert by_label(fams, "hostd_axis_position_degrees", "axis") == {"A": 0.0, "C": 0.0}
@@ -173,9 +176,10 @@ async def check_every_spec(c: Any, port: int) -> None:
         name = exposed_name(spec)
         assert name in fams, spec.name
         assert fams[name].type == exposed_type(spec), spec.name
-        assert documented[spec.name] == (spec.kind, spec.unit), spec.name
+        kind = exposed_type(spec) if spec.kind == "stateset" else spec.kind
+        assert documented[spec.name] == (kind, spec.unit), spec.name
         om_name = name if spec.kind != "info" else spec.name
-        assert om[om_name].type == spec.kind and om[om_name].unit == spec.unit, spec.name
+        assert om[om_name].type == kind and om[om_name].unit == spec.unit, spec.name
     assert not missing, missing
 
 

@@ -61,3 +61,34 @@ def test_security_exposure_below_three(tmp_path: Path) -> None:
     if match is None:
         pytest.skip(f"this systemd cannot score unit files offline: {res.stderr.strip()[:200]}")
     assert float(match.group(1)) < 3.0
+
+
+def test_runtime_directory_outlives_the_service() -> None:
+    """hostd.socket's socket lives in /run/hostd: systemd must not delete the directory
+    (and the socket with it) each time the service stops."""
+    svc = _service()["Service"]
+    assert svc["RuntimeDirectory"] == "hostd"
+    assert svc.get("RuntimeDirectoryPreserve") == "yes"
+
+
+def test_the_socket_unit_is_optional_as_the_readme_says() -> None:
+    """The README calls hostd.socket optional: the service orders itself after it but
+    pulls it in by no dependency (Wants=, Requires=, BindsTo=)."""
+    unit = _service()["Unit"]
+    for key in ("Wants", "Requires", "BindsTo", "Requisite"):
+        assert "hostd.socket" not in unit.get(key, ""), key
+    readme = (ROOT / "README.md").read_text()
+    assert "`hostd.socket` is optional" in readme
+    assert "systemctl enable --now hostd.socket" in readme
+
+
+def test_loopback_only_network_is_documented_at_metrics_host() -> None:
+    """The unit allows only localhost: metrics.host's documentation says how to let a remote
+    Prometheus in, in the generated config and README alike."""
+    svc = _service()["Service"]
+    assert svc["IPAddressDeny"] == "any" and svc["IPAddressAllow"] == "localhost"
+    from hostd.config.schema import SCHEMA
+
+    doc = SCHEMA["metrics"]["host"].doc
+    assert "IPAddressAllow" in doc
+    assert "IPAddressAllow" in (ROOT / "config" / "hostd.yaml").read_text()
