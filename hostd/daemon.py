@@ -232,9 +232,9 @@ class Daemon:
                                      self.snapshot)
         try:
             self.metrics.start()
-        except MetricsError as exc:
-            log.error("%s", exc)
+        except MetricsError as exc:  # a port in use: fatal, as a config error is
             self.metrics = None
+            raise DaemonError(f"metrics.port: {exc}") from None
 
     async def _temperature_monitor(self) -> None:
         """Publish the temperatures every :data:`TEMPERATURE_INTERVAL`, keeping an ``M105``

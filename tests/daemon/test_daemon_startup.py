@@ -141,3 +141,27 @@ def test_an_empty_or_too_long_socket_path_is_refused_at_config_load(tmp_path: Pa
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "daemon.socket" in lines[0], done.stderr
     assert "must not be empty" in lines[0] if not socket.strip() else "bytes long" in lines[0]
+
+
+@pytest.mark.timeout(60)
+def test_a_metrics_port_in_use_is_a_one_line_start_error(tmp_path: Path):
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        config = tmp_path / "hostd.yaml"
+        config.write_text(yaml.safe_dump({
+            "daemon": {"socket": str(tmp_path / "hostd.sock"),
+                       "state_dir": str(tmp_path / "state")},
+            "metrics": {"enabled": True, "host": "127.0.0.1", "port": port},
+            "serial": {"port": "sim://"}}))
+        done = subprocess.run([sys.executable, "-m", "hostd.main", "--config", str(config)],
+                              cwd=ROOT, capture_output=True, text=True, timeout=50,
+                              check=False)
+    assert done.returncode == 1, done.stderr  # before: it ran on without metrics
+    assert "Traceback" not in done.stderr
+    errors = [line for line in done.stderr.splitlines() if "ERROR" in line]
+    assert len(errors) == 1 and "metrics.port" in errors[0] and str(port) in errors[0], errors
+    assert not (tmp_path / "hostd.sock").exists()
