@@ -102,7 +102,23 @@ def strip_gcode(line: str) -> str | None:
     return _upper_command(text)
 
 
+FREE_TEXT = frozenset({"M23", "M28", "M30", "M32", "M117", "M118", "M928"})
+"""Commands whose argument is text (a message, a file name): kept as written."""
+
+
 def _upper_command(text: str) -> str:
-    """Upper-case the command word (``g1`` → ``G1``) but keep string arguments (M117) intact."""
-    word, sep, rest = text.partition(" ")
-    return word.upper() + sep + rest
+    """Upper-case the command word (``g1`` → ``G1``), and the parameter letters of every
+    command but those taking text (:data:`FREE_TEXT`): stock Marlin reads only upper-case
+    parameters (``G1 x20`` does not move), while hostd's modal tracker and travel checks
+    would take ``x20`` for X20. A tab between words becomes a blank, as Marlin expects."""
+    word, *more = text.split(None, 1)
+    word = word.upper()
+    if not more:
+        return word
+    rest = more[0]
+    if word not in FREE_TEXT:
+        if not rest.isupper():  # (the usual line has upper-case letters only)
+            rest = rest.upper()
+        if "\t" in rest:
+            rest = rest.replace("\t", " ")
+    return word + " " + rest

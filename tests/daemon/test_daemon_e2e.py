@@ -146,7 +146,7 @@ async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
             await c.call("job.submit", name="x.gcode", data="***")
         assert err.value.code == -32602
         for script, message in (("M117 a\x07b", "line 1: control character '\\x07'"),
-                                ("M105\nM104 Snan", "line 2: Snan is not a finite number"),
+                                ("M105\nM104 Snan", "line 2: SNAN is not a finite number"),
                                 ("M105\x00", "control character '\\x00'"),
                                 ("M105\nM104 S9999", "line 2: M104 S9999 is above the "
                                  "hotend's limit 285 °C (machine.max_hotend_temp)")):

@@ -13,9 +13,9 @@ from hostd.printer.program import check_command, parse_program
 
 
 @pytest.mark.parametrize(("text", "message"), [
-    ("G28\nG1 X1e400 Y5\n", "line 2: X1e400 is not a finite number"),
-    ("G1 Xnan\n", "line 1: Xnan is not a finite number"),
-    ("G1 X10 E-inf\n", "line 1: E-inf is not a finite number"),
+    ("G28\nG1 X1e400 Y5\n", "line 2: X1E400 is not a finite number"),
+    ("G1 Xnan\n", "line 1: XNAN is not a finite number"),
+    ("G1 X10 E-inf\n", "line 1: E-INF is not a finite number"),
     ("G1 X1\x1a\n", "line 1: control character '\\x1a'"),
     ("M117 a\x07\n", "line 1: control character '\\x07'"),
     ("G28\nM110 N0\nG1 X100\n", "line 2: M110 is not allowed in a job or raw G-code "
@@ -68,7 +68,7 @@ def test_an_estimate_keeps_only_finite_figures():
 def test_one_bad_line_among_many_is_found():
     lines = [f"G1 X{i % 50} Y{i % 7} E0.05 F1800" for i in range(2000)]
     lines[1499] = "G1 X5 Ynan"
-    with pytest.raises(ProgramError, match="line 1500: Ynan is not a finite number"):
+    with pytest.raises(ProgramError, match="line 1500: YNAN is not a finite number"):
         parse_program("\n".join(lines) + "\n")
 
 
