@@ -56,9 +56,9 @@ def build_registry(d: Daemon) -> Registry:
 
     async def printer_gcode(ctx: Client, script: str) -> dict[str, Any]:
         try:  # the checks of a file: no control characters, only finite numbers, the heaters'
-            program = parse_program(script)  # limits
-            if d.jobs.checker.envelope is not None:
-                d.jobs.checker.envelope.check_temperatures(program)
+            program = parse_program(script)  # limits, the travel of absolute moves (a relative
+            if d.jobs.checker.envelope is not None:  # one, from a place unknown, is not known)
+                d.jobs.checker.envelope.check(program)
         except ProgramError as exc:
             raise RpcError(INVALID_PARAMS, f"script: {exc}") from None
         commands = program.commands

@@ -149,7 +149,10 @@ async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
                                 ("M105\nM104 Snan", "line 2: SNAN is not a finite number"),
                                 ("M105\x00", "control character '\\x00'"),
                                 ("M105\nM104 S9999", "line 2: M104 S9999 is above the "
-                                 "hotend's limit 285 °C (machine.max_hotend_temp)")):
+                                 "hotend's limit 285 °C (machine.max_hotend_temp)"),
+                                ("G90\nG1 X9999", "line 2: X 9999 is outside the machine's "
+                                 "travel"),
+                                ("G1 A200", "line 1: A 200 is outside the machine's travel")):
             with pytest.raises(RpcCallError) as err:  # raw lines: never onto the wire
                 await c.call("printer.gcode", script=script)
             assert err.value.code == -32602 and message in err.value.message
