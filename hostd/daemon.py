@@ -70,6 +70,9 @@ class LinkPort:
     def submit_many(self, commands: Sequence[str]) -> tuple[int, asyncio.Future[int]]:
         return self.link.submit_many(commands)
 
+    def withdraw(self, first: int, last: int) -> int:
+        return self.link.withdraw(first, last)
+
     async def query(self, command: str) -> tuple[Reply, ...]:
         return (await self.link.query(command),)
 

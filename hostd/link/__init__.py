@@ -51,7 +51,9 @@ Using the link
 - ``submit(cmd) -> Future[int]`` (never blocks; resolves with the submission number when the
   firmware acknowledges the line, fails with a ``LinkError``), ``enqueue(cmds)``,
   ``async send(cmd) -> int``; ``submit_many(cmds) -> (first, Future[int])`` queues several
-  with one future for the last (the job streamer's way: a future per batch, not per line).
+  with one future for the last (the job streamer's way: a future per batch, not per line);
+  ``withdraw(first, last) -> int`` takes back the lines of such a batch that have not gone out
+  (a pause or cancel acts after the firmware's few lines, not after the whole queue).
 - ``async stream(lines, strip=True)`` yields the input index of each line as it is
   acknowledged, in order, with at most ``settings.max_queued`` lines ahead.
 - ``async query(cmd) -> Reply``; ``emergency_stop()``; ``status() -> dict``.
@@ -69,6 +71,7 @@ getting it back.
 ``status()`` keys: ``state``, ``connected``, ``port``, ``firmware_name``, ``capabilities``,
 ``temperatures`` (heater → actual/target/power), ``position`` (X, Y, Z, A, C, E),
 ``lines_sent``, ``lines_acked``, ``lines_resent``, ``lines_split`` (lines sent in parts),
+``lines_withdrawn`` (taken back unsent by a pause or cancel),
 ``resend_requests``, ``duplicate_resends``, ``checksum_errors``, ``line_errors``, ``timeouts``,
 ``starve_nudges`` (M105 sent after ``serial.starve_timeout`` while lines waited for credit),
 ``resets``, ``window_bytes``,

@@ -168,6 +168,36 @@ class SerialLink:
             self._apply(actions)
         return first, fut
 
+    def withdraw(self, first: int, last: int) -> int:
+        """Take back the lines submitted as ``first`` .. ``last`` (one :meth:`submit_many`
+        batch, or several in a row) that have not gone out; returns how many, the last ones
+        of the range. A future of a line taken back now stands for the last line kept (it
+        resolves with that line's number once acknowledged), or is cancelled when every
+        line of the range was taken back."""
+        taken = self.protocol.withdraw(first, last)
+        if taken:
+            self._rekey(first, last, last - taken)
+            self._arm_timer()
+        return taken
+
+    def _rekey(self, first: int, last: int, kept: int) -> None:
+        """Futures of lines ``kept + 1`` .. ``last`` now wait for line ``kept`` (or are
+        cancelled if ``kept < first``); ``_lines`` stays ordered."""
+        acked = self.protocol.last_acked
+        lines: deque[tuple[int, asyncio.Future[int]]] = deque()
+        for seq, fut in self._lines:
+            if kept < seq <= last:
+                if kept < first:
+                    fut.cancel()
+                    continue
+                if kept <= acked:
+                    if not fut.done():
+                        fut.set_result(kept)
+                    continue
+                seq = kept
+            lines.append((seq, fut))
+        self._lines = lines
+
     async def send(self, command: str) -> int:
         """Send one command and wait for its ``ok``; returns its submission number."""
         return await self.submit(command)

@@ -136,6 +136,7 @@ class Protocol:
     """
 
     _seq: int  # the submission number of the last line submitted (0 after _clear)
+    _pending: deque[Item]  # submitted, not yet sent (in order; a withdraw takes some back)
 
     def __init__(self, settings: LinkSettings) -> None:
         self.settings = settings
@@ -194,6 +195,22 @@ class Protocol:
         if idle:
             self._pump(now)
         return first, self._flush()
+
+    def withdraw(self, first: int, last: int) -> int:
+        """Take back the lines submitted as ``first`` .. ``last`` that no byte of has gone
+        out yet; returns how many (they are the last ones of the range: lines go out in
+        order). They will never be acknowledged; the lines after them are numbered on the
+        wire as if they had never been submitted. Queries and nudges are never taken back,
+        nor a line already sent (or going out in parts), which the firmware may execute or
+        ask for again."""
+        pending = self._pending
+        kept = deque(item for item in pending
+                     if item.kind != "line" or item.seq is None or not first <= item.seq <= last)
+        taken = len(pending) - len(kept)
+        if taken:
+            self._pending = kept
+            self.counters.lines_withdrawn += taken
+        return taken
 
     def receive(self, line: str, now: float) -> list[Action]:
         """Handle one line received from the firmware."""
@@ -322,7 +339,7 @@ class Protocol:
         self._rewind_target = 0
         self._history: dict[int, Item] = {}
         self._history_low = 0
-        self._pending: deque[Item] = deque()
+        self._pending = deque()
         self._resend: deque[Item] = deque()
         self._inflight = InFlight()
         self._partial: Sent | None = None  # the line going out in parts, if any

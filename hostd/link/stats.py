@@ -15,6 +15,7 @@ class LinkCounters:
     lines_sent: int = 0
     lines_acked: int = 0
     lines_resent: int = 0
+    lines_withdrawn: int = 0  # lines taken back unsent (a pause or cancel)
     lines_split: int = 0  # lines whose first part went out ahead of the credit for the rest
     reads: int = 0  # batches of replies handled together: one port read each
     resend_requests: int = 0

@@ -130,6 +130,8 @@ SPECS: tuple[Spec, ...] = (
          "long move).", "link.starve_nudges"),
     Spec("hostd_serial_lines_resent_total", "counter", "Lines sent again after a resend request.",
          "link.lines_resent"),
+    Spec("hostd_serial_lines_withdrawn_total", "counter", "Job lines taken back unsent by a "
+         "pause or cancel (sent again on resume).", "link.lines_withdrawn"),
     Spec("hostd_serial_reads_total", "counter", "Port reads that brought replies (while reads "
          "are held, one read takes in several oks).", "link.reads"),
     Spec("hostd_serial_checksum_errors_total", "counter", "Checksum/line-number errors reported.",

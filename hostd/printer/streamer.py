@@ -46,6 +46,12 @@ class Port(Protocol):
         ``last_acked`` is the last submission number acknowledged."""
         ...
 
+    def withdraw(self, first: int, last: int) -> int:
+        """Take back the lines submitted as ``first`` .. ``last`` that have not gone out;
+        returns how many (the last ones). The future of a batch cut short now completes when
+        its last line kept is acknowledged; one of a batch taken back whole is cancelled."""
+        ...
+
     async def query(self, command: str) -> tuple[Reply, ...]:
         """Send ``command``, wait for its ok, return the replies that arrived for it."""
         ...
@@ -131,6 +137,8 @@ class Streamer:
         self._resume = asyncio.Event()
         self._cancel = asyncio.Event()
         self._stop_asked = False  # a pause or cancel is asked for: stop between two lines
+        self._stoppable = False  # lines being fed may be taken back (not a transition's)
+        self._rewind: int | None = None  # the first command taken back: the next to submit
         self._needs_restart = False
         self.state = "idle"
 
@@ -153,7 +161,7 @@ class Streamer:
         if self.state == "streaming":
             self.pause_reason = reason
             self._pause_req.set()
-            self._stop_asked = True
+            self._stop()
 
     def request_resume(self) -> None:
         self._resume.set()
@@ -161,7 +169,30 @@ class Streamer:
     def request_cancel(self) -> None:
         self._cancel.set()
         self._resume.set()
+        self._stop()
+
+    def _stop(self) -> None:
+        """Stop between two lines: at once, as far as the link has not sent them yet."""
         self._stop_asked = True
+        if self._stoppable:
+            self._withdraw()
+
+    def _withdraw(self) -> None:
+        """Take back from the link the lines of the newest batches not gone out yet; the run
+        goes on (after the pause) from the first one taken back. So a pause or cancel acts
+        after the few lines the firmware holds, not after the whole lookahead."""
+        inflight = self._inflight
+        while inflight:
+            batch = inflight[-1]
+            count = batch.stop - batch.start
+            taken = self.port.withdraw(batch.first, batch.first + count - 1)
+            if not taken:
+                return
+            self._rewind = batch.stop - taken
+            if taken < count:
+                batch.stop -= taken
+                return
+            inflight.pop()  # its future is cancelled
 
     # -- the run ---------------------------------------------------------------------------
 
@@ -196,6 +227,8 @@ class Streamer:
                         return await self._finish_cancel()
                 continue
             index = await self._feed(index, self.program.next_transition_start(index))
+            if self._rewind is not None:
+                index, self._rewind = self._rewind, None
         # M400: the job is done when its moves are, not when its last line is taken into
         # the planner (seconds of moves may still be queued while "completed" tells the
         # operator to clear the platform)
@@ -213,19 +246,27 @@ class Streamer:
         acknowledged batch, and submits the next. The link's queue stays at least half full,
         far more than the firmware's buffer takes.
         """
+        self._stoppable = stoppable
+        try:
+            return await self._feed_batches(index, end, stoppable)
+        finally:
+            self._stoppable = False
+
+    async def _feed_batches(self, index: int, end: int, stoppable: bool) -> int:
         inflight, commands = self._inflight, self.program.commands
         submit_many = self.port.submit_many
         size = max(1, self.settings.lookahead // 2)
         batches = max(1, self.settings.lookahead // size)
         while index < end and not (stoppable and self._stop_asked):
             if len(inflight) >= batches:
+                # a batch taken back whole (a pause) is cancelled, which wakes this too
                 await _settled(inflight[0].acked)
             if inflight and inflight[0].acked.done():
                 while inflight and inflight[0].acked.done():
                     self._ack_head()
                 self._catch_up()  # here, not in a status call that would hold the loop
-                if stoppable and self._stop_asked:
-                    break
+            if stoppable and self._stop_asked:
+                break
             stop = min(end, index + size)
             first, fut = submit_many(commands[index:stop])
             inflight.append(Batch(index, stop, first, fut))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+from collections import Counter
 
 import pytest
 from hostd_harness import make_gcode
@@ -10,7 +11,7 @@ from hostd_harness import make_gcode
 from hostd.daemon import LinkPort
 from hostd.link import LinkSettings, SerialLink
 from hostd.printer.program import parse_program
-from hostd.printer.streamer import Streamer, StreamSettings
+from hostd.printer.streamer import Hooks, Streamer, StreamSettings
 from hostd.sim.settings import SimSettings
 
 HOST_OWN = {"M105", "M110", "M115", "M400", "M114"}  # the link's and the streamer's commands
@@ -39,3 +40,71 @@ async def test_lost_oks_cost_no_timeout_at_transitions_or_the_end(seed: int) -> 
     assert status["timeouts"] == 0 and st.stats.transitions == 2
     executed = [c for n, c in firmware.log if n and c.split()[0] not in HOST_OWN]
     assert executed == [c for c in prog.commands if c.split()[0] not in HOST_OWN]
+
+
+def _zigzag(lines: int) -> str:
+    """Moves of 5 mm at 100 mm/s (50 ms each), a layer every 50 lines, no heat-up."""
+    out = ["G90", "M83"]
+    for i in range(lines):
+        if i % 50 == 0:
+            out.append(f';HOSTD_LAYER {{"subpart": 0, "index": {i // 50}}}')
+        out.append(f"G1 X{100 + 5 * (i % 2)} Y{100 + (i // 2) % 3} Z{0.2 * (1 + i // 50):.1f} "
+                   "E0.05 F6000")
+    return "\n".join(out) + "\n"
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("then", ["resume", "cancel"])
+async def test_a_pause_takes_back_the_lines_not_sent_and_resume_sends_them_once(then: str) -> None:
+    """With the firmware slower than the wire, most of the lookahead waits in the link's queue;
+    a pause takes those lines back, so what still runs before the pause's retract is only
+    what was on the wire when it was asked for. Resumed, every line runs once, in order."""
+    link = SerialLink(LinkSettings(), SimSettings(realtime=True, time_scale=10.0, seed=1))
+    prog = parse_program(_zigzag(400))
+    seen: dict[str, int] = {}
+
+    def progress(st: Streamer) -> None:
+        if st.acked >= 100 and not seen:
+            status = link.status()
+            seen.update(acked=st.acked, wire=status["inflight_lines"],
+                        queued=status["queued_lines"])
+            st.request_pause()
+
+    def paused(st: Streamer, reason: str) -> None:
+        seen["at_pause"] = st.acked
+        st.request_resume() if then == "resume" else st.request_cancel()
+
+    async with asyncio.timeout(60):
+        await link.connect()
+        try:
+            assert link.connection is not None and link.connection.emulator is not None
+            firmware = link.connection.emulator.firmware
+            st = Streamer(LinkPort(link), prog, StreamSettings(lookahead=64),
+                          Hooks(progress=progress, paused=paused))
+            result = await st.run()
+            status = link.status()
+        finally:
+            await link.close()
+    assert seen["queued"] > 0  # lines were waiting in the link: the case of this test
+    assert seen["at_pause"] - seen["acked"] <= seen["wire"]
+    assert status["lines_withdrawn"] >= seen["queued"]
+    job, other = _split_log([c for n, c in firmware.log if n], prog.commands)
+    link_own = Counter({"M105": 99, "M115": 1})  # nudges and the handshake's query
+    assert Counter(other) - Counter(st.stats.extra_commands) <= link_own
+    if then == "resume":
+        assert result == "completed" and job == prog.commands  # each once, in order
+    else:
+        assert result == "cancelled" and job == prog.commands[:seen["at_pause"]]
+
+
+def _split_log(log: list[str], commands: list[str]) -> tuple[list[str], list[str]]:
+    """The log's lines matched in order against the file's commands, and the others (the
+    host's own: pause, resume, barriers, the link's ``M105`` nudges)."""
+    job: list[str] = []
+    other: list[str] = []
+    for cmd in log:
+        if len(job) < len(commands) and cmd == commands[len(job)]:
+            job.append(cmd)
+        else:
+            other.append(cmd)
+    return job, other

@@ -24,6 +24,7 @@ def full_snapshot() -> dict:
         "daemon": {"info": {"version": "0.1.0", "firmware_name": "hostd-sim"}},
         "link": {"connected": True, "capabilities": {"AUTOREPORT_TEMP": True, "EEPROM": False},
                  "lines_sent": 120, "lines_acked": 118, "lines_resent": 3, "reads": 60,
+                 "lines_withdrawn": 5,
                  "checksum_errors": 2, "timeouts": 1, "reconnects": 0, "window_bytes": 127,
                  "state": "halted", "resets": 1,
                  "starve_nudges": 4,
