@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import random
 from collections import Counter
 
 import pytest
@@ -108,3 +109,44 @@ def _split_log(log: list[str], commands: list[str]) -> tuple[list[str], list[str
         else:
             other.append(cmd)
     return job, other
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("seed", range(6))
+async def test_pauses_at_random_moments_on_a_faulty_wire_run_every_line_once(seed: int) -> None:
+    """Flipped bits (resends), lost ``ok`` s and pauses asked at random moments, some during a
+    transition: the lines taken back are sent again on resume, and the board runs each of the
+    file's lines once, in order, with only the host's own commands between them."""
+    rng = random.Random(seed)
+    sim = SimSettings(realtime=True, time_scale=200.0, bit_flip_prob=0.005, lost_ok_prob=0.005,
+                      seed=seed)
+    link = SerialLink(LinkSettings(ok_timeout=2.0, starve_timeout=0.2), sim)
+    prog = parse_program(make_gcode(subparts=3, layers=2, per_layer=60))
+    pauses = sorted(rng.sample(range(20, prog.total - 5), 3))
+
+    def progress(st: Streamer) -> None:
+        if pauses and st.acked >= pauses[0]:
+            pauses.pop(0)
+            st.request_pause()
+
+    async def resume_soon(st: Streamer) -> None:
+        await asyncio.sleep(rng.uniform(0, 0.05))  # the operator's reaction, not a sync
+        st.request_resume()
+
+    resumes: list[asyncio.Task[None]] = []
+    async with asyncio.timeout(90):
+        await link.connect()
+        try:
+            assert link.connection is not None and link.connection.emulator is not None
+            firmware = link.connection.emulator.firmware
+            st = Streamer(LinkPort(link), prog, StreamSettings(lookahead=64), Hooks(
+                progress=progress,
+                paused=lambda s, r: resumes.append(asyncio.create_task(resume_soon(s)))))
+            assert await st.run() == "completed"
+            await asyncio.gather(*resumes)
+        finally:
+            await link.close()
+    assert len(resumes) >= 2  # pauses asked past the end of the file do not count
+    job, other = _split_log([c for n, c in firmware.log if n], prog.commands)
+    assert job == prog.commands
+    assert Counter(other) - Counter(st.stats.extra_commands) <= Counter({"M105": 99, "M115": 1})
