@@ -92,3 +92,15 @@ def test_loopback_only_network_is_documented_at_metrics_host() -> None:
     doc = SCHEMA["metrics"]["host"].doc
     assert "IPAddressAllow" in doc
     assert "IPAddressAllow" in (ROOT / "config" / "hostd.yaml").read_text()
+
+
+def test_the_unit_and_the_install_steps_use_the_config_hostd_reads_by_default() -> None:
+    """hostd without --config reads INSTALLED_CONFIG: the README installs the config there
+    and the unit checks and runs that file."""
+    from hostd.config.paths import INSTALLED_CONFIG
+
+    svc = _service()["Service"]
+    assert svc["ExecStart"].endswith(f" --config {INSTALLED_CONFIG}")
+    assert svc["ExecStartPre"].endswith(f" --check-config {INSTALLED_CONFIG}")
+    readme = (ROOT / "README.md").read_text()
+    assert f"install -D -m 0644 config/hostd.yaml {INSTALLED_CONFIG}" in readme
