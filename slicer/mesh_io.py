@@ -14,6 +14,7 @@ later output carries.
 
 from __future__ import annotations
 
+import math
 import re
 import struct
 import warnings
@@ -109,7 +110,7 @@ def load_mesh(path: str | Path, build_volume: np.ndarray | None = None,
 
 
 def read_stl(path: str | Path) -> trimesh.Trimesh:
-    """Parse an STL file with trimesh, refusing empty, truncated or non-finite files."""
+    """Parse an STL file (:func:`parse_stl`), naming it by ``path``."""
     name = str(path)
     try:
         if not Path(path).is_file():  # a directory, /dev/zero, a pipe: no end to read to
@@ -118,24 +119,51 @@ def read_stl(path: str | Path) -> trimesh.Trimesh:
         data = Path(path).read_bytes()
     except OSError as exc:
         raise MeshError(f"{name}: cannot read: {exc.strerror or exc}") from None
+    return parse_stl(data, name)
+
+
+def parse_stl(data: bytes, name: str) -> trimesh.Trimesh:
+    """The triangles of ASCII or binary STL ``data``, parsed by trimesh (unprocessed).
+
+    Empty, truncated, unreadable and non-finite data is refused; for an ASCII STL the message
+    names the first line at fault. The daemon's upload check runs this too (in its worker
+    process), so an upload is refused for what would stop its slice here, in the same words.
+
+    Raises
+    ------
+    MeshError
+        One line: ``"<name>: <reason>"``, e.g. ``"part.stl: not a readable STL file (line 5:
+        'vertex 1 0 x0')"``.
+    """
     if not data.strip():
         raise MeshError(f"{name}: empty file")
-    data = _ascii_text(data) if _is_ascii_stl(data) else _binary_body(data, name)
+    text = _is_ascii_stl(data)
+    data = _ascii_body(data, name) if text else _binary_body(data, name)
     try:
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")  # non-finite input is refused below, in one line
             mesh = trimesh.load_mesh(trimesh.util.wrap_as_stream(data), file_type="stl",
                                      process=False)
     except _PARSE_ERRORS as exc:
-        where = _first_bad_line(data) if _is_ascii_stl(data) else None
+        where = _first_bad_line(data) if text else None
         raise MeshError(f"{name}: not a readable STL file ("
                         f"{where or type(exc).__name__})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise MeshError(f"{name}: no triangles (empty or truncated STL)")
-    if not np.isfinite(mesh.vertices).all():
-        bad = int((~np.isfinite(mesh.vertices).all(axis=1)).sum())
-        raise MeshError(f"{name}: {bad} vertices have NaN or infinite coordinates")
+    _check_finite(mesh, data if text else None, name)
     return mesh
+
+
+def _check_finite(mesh: trimesh.Trimesh, text: bytes | None, name: str) -> None:
+    """Refuse NaN or infinite corners, naming the first: its line in the ASCII ``text``, or
+    its triangle (binary, ``text`` None)."""
+    corners = ~np.isfinite(mesh.triangles).all(axis=2)
+    if not corners.any():
+        return
+    first = _first_bad_line(text) if text is not None else None
+    where = first or f"in triangle {int(np.flatnonzero(corners.any(axis=1))[0])}"
+    raise MeshError(f"{name}: {int(corners.sum())} triangle corners have NaN or infinite "
+                    f"coordinates (the first {'at ' if first else ''}{where})")
 
 
 def _is_ascii_stl(data: bytes) -> bool:
@@ -144,6 +172,29 @@ def _is_ascii_stl(data: bytes) -> bool:
     head = data.lstrip()[:2048]
     return head[:5].lower() == b"solid" and b"\0" not in head and (
         b"facet" in head or b"endsolid" in data[-2048:].lower())
+
+
+def _ascii_body(data: bytes, name: str) -> bytes:
+    """An ASCII STL as :func:`_ascii_text`; refused, naming its last line, when it was cut
+    short (:func:`_cut_short`)."""
+    data = _ascii_text(data)
+    if _cut_short(data.lower()):
+        lines = data.rstrip().splitlines()
+        last = lines[-1].strip().decode("ascii")[:60]
+        raise MeshError(f"{name}: truncated ASCII STL: no endsolid after line {len(lines)}: "
+                        f"{last!r}")
+    return data
+
+
+def _cut_short(lower: bytes) -> bool:
+    """Whether the lower-cased ASCII STL ``lower`` has no ``endsolid``, or a facet after the
+    line of its last one (trimesh reads no triangle of the one, and silently drops the facets
+    of the other)."""
+    end = lower.rfind(b"endsolid")
+    if end < 0:
+        return True
+    line_end = lower.find(b"\n", end)
+    return line_end >= 0 and lower.find(b"facet", line_end) >= 0
 
 
 def _ascii_text(data: bytes) -> bytes:
@@ -158,21 +209,26 @@ _NUMBERS = re.compile(rb"\s*(facet\s+normal|vertex)\s+(.*)", re.IGNORECASE)
 
 
 def _first_bad_line(data: bytes) -> str | None:
-    """``"line N: <text>"`` for the first line of an ASCII STL that is not STL, or None."""
+    """``"line N: <text>"`` for the first line of an ASCII STL that is not STL (or a vertex
+    that is not finite), or None."""
     for number, line in enumerate(data.splitlines(), 1):
         numbers = _NUMBERS.fullmatch(line)
-        if _STL_LINE.fullmatch(line) and (numbers is None or _numbers_ok(numbers[2])):
+        if _STL_LINE.fullmatch(line) and (numbers is None
+                                          or _numbers_ok(numbers[1], numbers[2])):
             continue
         text = line.strip().decode("ascii", "replace")
         return f"line {number}: {text[:60]!r}"
     return None
 
 
-def _numbers_ok(text: bytes) -> bool:
+def _numbers_ok(keyword: bytes, text: bytes) -> bool:
+    """Three numbers, finite for a ``vertex`` (a normal may be NaN: some exporters write that
+    for a degenerate triangle, and the normals are recomputed from the corners)."""
     try:
-        return len([float(x) for x in text.split()]) == 3
+        values = [float(x) for x in text.split()]
     except ValueError:
         return False
+    return len(values) == 3 and (keyword.lower() != b"vertex" or all(map(math.isfinite, values)))
 
 
 def _binary_body(data: bytes, name: str) -> bytes:

@@ -170,50 +170,6 @@ def upload_kind(name: str, kind: str | None) -> str:
     return KINDS[ext]
 
 
-def check_stl(data: bytes, name: str) -> None:
-    """A cheap structural check before anything is queued; the slicer does the real parse."""
-    if data[:5].lower() == b"solid" and b"facet" in data[:4096].lower():
-        try:
-            data.decode("ascii")
-        except UnicodeDecodeError:
-            raise SpoolError(f"{name}: ASCII STL with non-ASCII bytes") from None
-        if b"endsolid" not in data[-4096:].lower():
-            raise SpoolError(f"{name}: ASCII STL is truncated (no endsolid)")
-        if bad := _NONFINITE_ASCII.search(data):
-            line = data.count(b"\n", 0, bad.start()) + 1
-            raise SpoolError(f"{name}: line {line}: vertex with a NaN, infinite or absurdly "
-                             "large coordinate")
-        return
-    if len(data) < 84:
-        raise SpoolError(f"{name}: not an STL file ({len(data)} bytes)")
-    count = int.from_bytes(data[80:84], "little")
-    if count == 0:
-        raise SpoolError(f"{name}: STL has no triangles")
-    if len(data) < 84 + 50 * count:  # longer is padding, dropped by the slicer as well
-        raise SpoolError(f"{name}: corrupt binary STL: {count} triangles need "
-                         f"{84 + 50 * count} bytes, the file has only {len(data)} "
-                         "(truncated?)")
-    _check_finite(data, count, name)
-
-
-_NONFINITE_ASCII = re.compile(  # nan, inf, or an exponent of 100 or more (1e999 reads as inf)
-    rb"vertex[ \t]+[^\n]*?(nan|inf|e\+?0*[1-9][0-9]{2,})", re.IGNORECASE)
-_TRIANGLE = [("normal", "<f4", (3,)), ("vertices", "<f4", (3, 3)), ("attributes", "<u2")]
-
-
-def _check_finite(data: bytes, count: int, name: str) -> None:
-    """Refuse a binary STL with a NaN or infinite vertex coordinate (numpy: this runs in the
-    file checker's worker process, not in the daemon)."""
-    import numpy as np
-
-    tri = np.frombuffer(data, np.dtype(_TRIANGLE), count, offset=84)
-    bad = ~np.isfinite(tri["vertices"]).all(axis=2)
-    if bad.any():
-        first = int(np.flatnonzero(bad.any(axis=1))[0])
-        raise SpoolError(f"{name}: {int(bad.sum())} triangle corners have NaN or infinite "
-                         f"coordinates (the first in triangle {first})")
-
-
 def check_gcode(data: bytes, name: str) -> str:
     """The text of a G-code upload; :class:`SpoolError` for binary data."""
     try:

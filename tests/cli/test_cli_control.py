@@ -341,6 +341,30 @@ async def test_a_job_name_with_a_newline_is_refused_at_submit(tmp_path):
 
 
 @pytest.mark.asyncio
+async def test_print_of_a_corrupt_ascii_stl_exits_2_naming_its_line_and_the_print_goes_on(
+        tmp_path):
+    """A corrupt ASCII STL is refused at submission (not when its slice starts): one line
+    naming the file and the line, exit 2; the daemon and the job printing carry on."""
+    long = tmp_path / "long.gcode"
+    long.write_text(make_gcode(subparts=1, layers=20, per_layer=200))
+    bad = tmp_path / "bad.stl"
+    bad.write_bytes(b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 x0\n"
+                    b"vertex 0 1 0\nendloop\nendfacet\nendsolid x\n")
+    async with asyncio.timeout(90), running(tmp_path, sim__throttle=True) as d:
+        watcher = await d.rpc()
+        await watcher.call("events.subscribe", events=["job.progress"])
+        rc, _, err = await hostctl(d.socket, "print", str(long))
+        assert rc == 0, err
+        await watcher.until(lambda e: e["event"] == "job.progress" and e["acked"] > 10)
+        rc, out, err = await hostctl(d.socket, "print", str(bad))
+        assert (rc, out) == (2, "")
+        assert err == "hostctl: bad.stl: not a readable STL file (line 5: 'vertex 1 0 x0')\n"
+        rc, out, _ = await hostctl(d.socket, "jobs", "--json")
+        assert rc == 0 and [(j["id"], j["state"]) for j in json.loads(out)] == [(1, "printing")]
+        await watcher.close()
+
+
+@pytest.mark.asyncio
 async def test_ctrl_c_of_print_wait_says_the_job_goes_on_and_estop_takes_json(tmp_path):
     long = tmp_path / "long.gcode"
     long.write_text(make_gcode(subparts=1, layers=20, per_layer=200))

@@ -126,7 +126,17 @@ async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
         job = await c.submit_text("long.gcode", text)
         await c.until(lambda e: e["event"] == "job.progress" and e["progress"] > 0.05)
         bad = {
-            "corrupt.stl": (os.urandom(1000), "corrupt binary STL"),
+            "corrupt.stl": (os.urandom(1000), "corrupt.stl: truncated binary STL"),
+            "number.stl": (b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\n"
+                           b"vertex 1 0 x0\nvertex 0 1 0\nendloop\nendfacet\nendsolid x\n",
+                           "number.stl: not a readable STL file (line 5: 'vertex 1 0 x0')"),
+            "cut.stl": (b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\n",
+                        "cut.stl: truncated ASCII STL: no endsolid after line 4: "
+                        "'vertex 0 0 0'"),
+            "nan.stl": (b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\n"
+                        b"vertex 1 0 0\nvertex nan 1 0\nendloop\nendfacet\nendsolid x\n",
+                        "nan.stl: 1 triangle corners have NaN or infinite coordinates (the "
+                        "first at line 6: 'vertex nan 1 0')"),
             "empty.stl": (b"", "empty.stl: empty upload"),
             "big.gcode": (b"G1 X1\n" * 40_000, "exceeds the limit"),
             "binary.gcode": (b"\xff\xfe\x00G1", "not UTF-8"),

@@ -47,6 +47,13 @@ def nan_stl(triangles: int, bad: int) -> bytes:
     return b"\0" * 80 + struct.pack("<I", triangles) + b"".join(rows)
 
 
+def ascii_stl(second: str = "vertex 1 0 0", third: str = "vertex 0 1 0") -> bytes:
+    """An ASCII STL of one triangle whose second and third corners (lines 5 and 6) are
+    ``second`` and ``third``."""
+    return (f"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\n{second}\n{third}\n"
+            "endloop\nendfacet\nendsolid x\n").encode()
+
+
 @pytest.mark.asyncio
 @pytest.mark.timeout(120)
 async def test_the_worker_summarizes_as_a_parse_here_would(tmp_path: Path,
@@ -78,17 +85,23 @@ async def test_the_worker_summarizes_as_a_parse_here_would(tmp_path: Path,
     ("gcode", b"\xff\xfe\x00binary", "not UTF-8"),
     ("gcode", b"G1 X1\n\0G1 X2\n", "NUL"),
     ("gcode", b"; only a comment\n\n", "no commands"),
-    ("stl", binary_stl(2)[:-7], "corrupt binary STL: 2 triangles need 184 bytes, the file "
-     r"has only 177 \(truncated\?\)"),
-    ("stl", b"solid x\nfacet normal 0 0 1\n", "truncated"),
+    ("stl", binary_stl(2)[:-7], r"truncated binary STL: header declares 2 triangles \(184 "
+     r"bytes\) but the file has 177 bytes"),
+    ("stl", b"solid x\nfacet normal 0 0 1\n", "truncated ASCII STL: no endsolid after line 2: "
+     "'facet normal 0 0 1'"),
     ("stl", nan_stl(3, 2), r"1 triangle corners have NaN or infinite coordinates \(the "
      r"first in triangle 2\)"),
-    ("stl", b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 NaN\n"
-     b"vertex 0 1 0\nendloop\nendfacet\nendsolid x\n", "line 5: vertex with a NaN"),
-    ("stl", b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1 0 0\n"
-     b"vertex 0 1 -inf\nendloop\nendfacet\nendsolid x\n", "line 6: vertex with a NaN"),
-    ("stl", b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\nvertex 1e999 0 0\n"
-     b"vertex 0 1 0\nendloop\nendfacet\nendsolid x\n", "line 5: vertex with a NaN, infinite"),
+    ("stl", ascii_stl("vertex 1 0 NaN"), r"1 triangle corners have NaN or infinite "
+     r"coordinates \(the first at line 5: 'vertex 1 0 NaN'\)"),
+    ("stl", ascii_stl("vertex 1 0 0", "vertex 0 1 -inf"), r"\(the first at line 6: "
+     "'vertex 0 1 -inf'"),
+    ("stl", ascii_stl("vertex 1e999 0 0"), "NaN or infinite coordinates \\(the first at line 5"),
+    ("stl", ascii_stl("vertex 1 0 x0"), r"not a readable STL file \(line 5: 'vertex 1 0 x0'\)"),
+    ("stl", ascii_stl("vertex 1 0"), r"not a readable STL file \(line 5: 'vertex 1 0'\)"),
+    ("stl", ascii_stl().split(b"endloop")[0], "truncated ASCII STL: no endsolid after line 6: "
+     "'vertex 0 1 0'"),
+    ("stl", ascii_stl() + b"solid y\nfacet normal 0 0 1\n", "truncated ASCII STL: no endsolid "
+     "after line 11: 'facet normal 0 0 1'"),
 ])
 async def test_a_bad_file_is_refused_naming_it(tmp_path: Path, kind: str, data: bytes,
                                                message: str):
@@ -162,7 +175,40 @@ def test_the_upload_check_and_the_slicer_agree_on_a_binary_stl_of_another_length
         assert file_check.check_file(str(path), "stl", "box.stl") is None
         assert load_mesh(path)[0].volume == pytest.approx(8000.0)
     else:
-        with pytest.raises(SpoolError, match=r"box\.stl: corrupt binary STL"):
+        with pytest.raises(SpoolError, match=r"box\.stl: truncated binary STL"):
             file_check.check_file(str(path), "stl", "box.stl")
         with pytest.raises(MeshError, match="truncated binary STL"):
             load_mesh(path)
+
+
+@pytest.mark.parametrize("data", [
+    ascii_stl("vertex 1 0 x0"), ascii_stl("vertex 1 0"), ascii_stl("vertex 1 0 NaN"),
+    ascii_stl().split(b"endloop")[0], ascii_stl() + b"solid y\nfacet normal 0 0 1\n",
+    ascii_stl("vertex 1 0 0", "vertex 0 1 0\nvertex 0 0 1"),
+])
+def test_the_upload_check_refuses_a_corrupt_ascii_stl_as_the_slicer_does(tmp_path: Path,
+                                                                          data: bytes):
+    """The upload check is the slicer's reader: the same one line, naming the upload."""
+    from slicer.mesh_io import MeshError, load_mesh
+
+    path = written(tmp_path, "part.stl", data)
+    with pytest.raises(SpoolError) as upload:
+        file_check.check_file(str(path), "stl", "part.stl")
+    with pytest.raises(MeshError) as slicer:
+        load_mesh(path)
+    assert str(upload.value) == str(slicer.value).replace(str(path), "part.stl")
+    assert str(upload.value).startswith("part.stl: ") and "\n" not in str(upload.value)
+
+
+def test_an_ascii_stl_named_in_latin_1_is_taken_by_the_upload_check_as_by_the_slicer(
+        tmp_path: Path):
+    """Bytes outside ASCII in the solid's name stop neither (the slicer reads them as ``?``)."""
+    import trimesh
+
+    from slicer.mesh_io import load_mesh
+
+    text = trimesh.creation.box([20.0, 20.0, 20.0]).export(file_type="stl_ascii")
+    path = written(tmp_path, "box.stl", ("solid café\n" + text.split("\n", 1)[1])
+                   .encode("latin-1"))
+    assert file_check.check_file(str(path), "stl", "box.stl") is None
+    assert load_mesh(path)[0].volume == pytest.approx(8000.0)

@@ -300,3 +300,32 @@ def test_a_2mm_cube_gets_no_inch_hint(tmp_path):
     trimesh.creation.box([2.0, 2.0, 2.0]).export(path)
     mesh, _ = load_mesh(path, build_volume=BUILD_VOLUME)
     assert mesh.volume == pytest.approx(8.0)
+
+
+def test_a_cut_ascii_stl_is_refused_naming_its_last_line(tmp_path):
+    lines = samples.cylinder().export(file_type="stl_ascii").splitlines()
+    cut = lines[:len(lines) // 2]
+    msg = _refused(_write(tmp_path, "c.stl", "\n".join(cut).encode()))
+    assert f"truncated ASCII STL: no endsolid after line {len(cut)}: {cut[-1].strip()!r}" in msg
+
+
+def test_facets_after_the_last_endsolid_are_not_dropped_silently(tmp_path):
+    """trimesh reads the facets up to the last ``endsolid``: a second solid cut short would
+    be lost without a word."""
+    text = samples.cylinder().export(file_type="stl_ascii")
+    rest = "solid more\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\n"
+    msg = _refused(_write(tmp_path, "m.stl", (text + rest).encode()))
+    assert f"no endsolid after line {len(text.splitlines()) + 4}: 'vertex 0 0 0'" in msg
+
+
+def test_a_non_finite_ascii_vertex_is_named_by_its_line_not_a_nan_normal(tmp_path):
+    """Some exporters write a NaN normal for a degenerate facet: the normals are recomputed,
+    so the line named is the first non-finite vertex."""
+    lines = samples.cylinder().export(file_type="stl_ascii").splitlines()
+    vertex = [i for i, text in enumerate(lines) if "vertex" in text]
+    normal = [i for i, text in enumerate(lines) if "normal" in text]
+    lines[normal[0]] = "facet normal nan nan nan"
+    lines[vertex[7]] = "vertex 1 inf 2"
+    msg = _refused(_write(tmp_path, "n.stl", "\n".join(lines).encode()))
+    assert msg.endswith(f"1 triangle corners have NaN or infinite coordinates (the first at "
+                        f"line {vertex[7] + 1}: 'vertex 1 inf 2')")
