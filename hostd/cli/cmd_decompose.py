@@ -11,7 +11,7 @@ import numpy as np
 
 from hostd.cli.errors import EXIT_FAILED, CliError
 from hostd.config import Config, ConfigError, load
-from hostd.config.paths import DEFAULT_CONFIG
+from hostd.config.paths import INSTALLED_CONFIG, offline_config
 from hostd.config.schema import SCHEMA
 
 
@@ -27,7 +27,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--root", type=int, default=None,
                    help="coarse region of the root (the numbers labelled in preview.png)")
     p.add_argument("--seed", type=int, default=None, help="seed (default: config)")
-    p.add_argument("--config", default=str(DEFAULT_CONFIG), help="config file")
+    p.add_argument("--config", default=None, metavar="FILE",
+                   help=f"config file (default: {INSTALLED_CONFIG} if it exists, else the "
+                        "shipped defaults)")
     p.add_argument("--no-preview", action="store_true", help="skip preview.png")
     p.set_defaults(func=run)
 
@@ -70,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     from slicer.printhead import Printhead, PrintheadError
 
     try:
-        cfg = load(args.config)
+        cfg = load(args.config or offline_config())
     except ConfigError as exc:
         raise CliError(str(exc)) from None
     settings = _settings(cfg, args)

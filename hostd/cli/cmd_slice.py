@@ -11,7 +11,7 @@ from typing import Any
 
 from hostd.cli.errors import EXIT_FAILED, CliError
 from hostd.config import ConfigError, load
-from hostd.config.paths import DEFAULT_CONFIG
+from hostd.config.paths import INSTALLED_CONFIG, offline_config
 
 
 def register(subparsers: Any) -> None:
@@ -25,7 +25,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("-o", "--output", required=True, help="G-code file to write")
     p.add_argument("--layer-height", type=float, default=None,
                    help="nominal layer height, mm (default: config process.layer_height)")
-    p.add_argument("--config", default=str(DEFAULT_CONFIG), help="config file")
+    p.add_argument("--config", default=None, metavar="FILE",
+                   help=f"config file (default: {INSTALLED_CONFIG} if it exists, else the "
+                        "shipped defaults)")
     p.add_argument("--preview", default=None, help="write a PNG of the toolpaths here")
     p.add_argument("--planar", action="store_true",
                    help="3-axis control: no decomposition, horizontal layers, A = C = 0")
@@ -37,7 +39,7 @@ def _inputs(args: argparse.Namespace) -> dict[str, Any]:
     from slicer.printhead import PrintheadError
 
     try:
-        cfg = load(args.config)
+        cfg = load(args.config or offline_config())
     except ConfigError as exc:
         raise CliError(str(exc)) from None
     override: dict[str, float] = {}
