@@ -46,6 +46,7 @@ class Transition:
     parent: int | None
     target: dict[str, float]  # X Y Z A C the block must reach (keys present only)
     source_line: int
+    safe_z: float | None = None  # the Z the block lifts to before it turns (its marker's)
 
 
 @dataclass(frozen=True)
@@ -83,8 +84,11 @@ class Program:
     @property
     def transition_z(self) -> float | None:
         """The highest machine Z a transition of the file lifts to before it turns the
-        platform: the slicer's clearance for the whole part (``None`` without transitions)."""
-        return max((t.target["Z"] for t in self.transitions if "Z" in t.target), default=None)
+        platform: the slicer's clearance for the whole part (``None`` without transitions).
+        A marker's ``safe_z`` is that lift; where a marker has none, its target Z (the
+        approach) is all the file says."""
+        return max((z for t in self.transitions for z in (t.safe_z, t.target.get("Z"))
+                    if z is not None), default=None)
 
     def next_transition_start(self, index: int) -> int:
         """The first command after ``index`` that starts a transition block (``total`` if
@@ -180,7 +184,7 @@ def _marker(prog: Program, text: str, lineno: int, open_tr: dict[str, Any] | Non
             raise ProgramError(f"line {lineno}: HOSTD_TRANSITION_END without a start")
         prog.transitions.append(Transition(
             open_tr["start"], index, open_tr["to"], open_tr["from"], open_tr["target"],
-            open_tr["line"]))
+            open_tr["line"], open_tr["safe_z"]))
         return None, subpart
     data = _json(payload, lineno, name)
     if name == "SUBPART":
@@ -200,8 +204,9 @@ def _marker(prog: Program, text: str, lineno: int, open_tr: dict[str, Any] | Non
             raise ProgramError(f"line {lineno}: nested HOSTD_TRANSITION")
         target = {k.upper(): _number(data, k, lineno) for k in ("x", "y", "z", "a", "c", "X",
                                                                 "Y", "Z", "A", "C") if k in data}
+        safe_z = _number(data, "safe_z", lineno) if "safe_z" in data else None
         return {"start": index, "to": _int(data, "to", lineno), "from": data.get("from"),
-                "target": target, "line": lineno}, subpart
+                "target": target, "line": lineno, "safe_z": safe_z}, subpart
     return open_tr, subpart
 
 

@@ -245,6 +245,24 @@ async def test_cancel_runs_end_script():
 
 
 @pytest.mark.asyncio
+async def test_a_cancel_ends_as_high_as_the_files_transitions_lift_not_their_approach():
+    """The slicer's transition lifts to its marker's ``safe_z`` (above everything printed)
+    and then approaches the next sub-part lower down; a cancel (and a restart) must turn the
+    platform no lower than that lift. Before, the approach Z (60) was taken: the QA saw a
+    return turn 27 mm below the file's own on pipe2."""
+    text = GCODE.replace('"z": 60}', '"z": 60, "safe_z": 95.5}').replace(
+        "G0 Z60 F3000\nG0 A30", "G0 Z95.5 F3000\nG0 A30")
+    prog = parse_program(text)
+    assert prog.transitions[0].safe_z == 95.5 and prog.transition_z == 95.5
+    port = FakePort()
+    st = Streamer(port, prog, StreamSettings(lookahead=2, safe_height=50), Hooks(
+        progress=lambda s: s.request_cancel() if s.acked == 6 else None))
+    async with asyncio.timeout(5):
+        assert await st.run() == "cancelled"
+    assert port.log[-3:] == ["G0 Z95.5 F3000", "G0 A0 C0 F3000", "M84"]
+
+
+@pytest.mark.asyncio
 async def test_a_cancel_fills_format_specs_as_the_slicer_and_the_config_check_do():
     # Before: the cancel filled {safe_z} as a string, so "{safe_z:.1f}" (accepted by the
     # config check, which fills a float) failed the cancel and left the heaters on.
