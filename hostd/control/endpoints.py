@@ -72,6 +72,8 @@ def build_registry(d: Daemon) -> Registry:
             if unsafe:
                 raise PrinterBusy(f"refused while printing: {unsafe[0]} (allowed: "
                                   f"{' '.join(sorted(SAFE_WHILE_PRINTING))})")
+        elif act is not None:  # paused: anything goes, and the resume puts it back
+            act.streamer.note_raw(commands)
         raw = [await d.link.query(c) for c in commands]
         return {"commands": commands, "replies": [_reply(r) for r in raw],
                 "errors": [{"command": c, "reply": str(getattr(r, "text", r))}

@@ -210,11 +210,22 @@ class ModalState:
         return out
 
     def restart_commands(self, safe_z: float, travel_f: float, rotary_f: float,
-                         lift_f: float) -> list[str]:
-        """From a cold or reset machine to this state: re-home, reheat, safe height, rotate,
-        approach the recorded X/Y, lower to Z, restore the modes."""
+                         lift_f: float, home: bool = True) -> list[str]:
+        """From a cold or reset machine (or one moved by hand: ``home`` False) to this state:
+        re-home, reheat, safe height, rotate, approach the recorded X/Y, lower to Z, restore
+        the modes."""
         p = self.position
-        out = ["G28"]
+        out = ["G28"] if home else []
+        out += self.heat_commands()
+        out += ["G90", f"G0 Z{max(safe_z, p['Z']):.4f} F{lift_f:.0f}",
+                f"G0 A{p['A']:.4f} C{p['C']:.4f} F{rotary_f:.0f}",
+                f"G0 X{p['X']:.4f} Y{p['Y']:.4f} F{travel_f:.0f}",
+                f"G0 Z{p['Z']:.4f} F{lift_f:.0f}"]
+        return out + self.mode_commands()
+
+    def heat_commands(self) -> list[str]:
+        """Set the heaters' targets (bed first) and wait for them; none if both are off."""
+        out = []
         if self.bed:
             out.append(f"M140 S{self.bed:g}")
         if self.hotend:
@@ -223,11 +234,12 @@ class ModalState:
             out.append(f"M190 S{self.bed:g}")
         if self.hotend:
             out.append(f"M109 S{self.hotend:g}")
-        out += ["G90", f"G0 Z{max(safe_z, p['Z']):.4f} F{lift_f:.0f}",
-                f"G0 A{p['A']:.4f} C{p['C']:.4f} F{rotary_f:.0f}",
-                f"G0 X{p['X']:.4f} Y{p['Y']:.4f} F{travel_f:.0f}",
-                f"G0 Z{p['Z']:.4f} F{lift_f:.0f}"]
-        return out + self.mode_commands()
+        return out
+
+    def heaters_off_commands(self) -> list[str]:
+        """Turn off a heater this state has off (one an operator may have turned on)."""
+        return [f"{code} S0" for code, target in (("M140", self.bed), ("M104", self.hotend))
+                if not target]
 
 
 def _plain_run_end(text: str, pos: int) -> int:

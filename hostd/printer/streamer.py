@@ -23,6 +23,7 @@ from typing import Any, Protocol
 from hostd.link.errors import LinkError
 from hostd.link.replies import Ok, Position, Reply, Temperatures
 from hostd.printer.errors import PrinterError, TransitionFailed
+from hostd.printer.intervention import Need, need_of_all
 from hostd.printer.modal import ModalState
 from hostd.printer.program import Program, Transition
 
@@ -140,6 +141,7 @@ class Streamer:
         self._stoppable = False  # lines being fed may be taken back (not a transition's)
         self._rewind: int | None = None  # the first command taken back: the next to submit
         self._needs_restart = False
+        self._intervention = Need.NONE  # what raw G-code during a pause asks of the resume
         self.state = "idle"
 
     @property
@@ -353,17 +355,40 @@ class Streamer:
         self._stop_asked = self._cancel.is_set()
         if self._cancel.is_set():
             return
-        if self._needs_restart:
-            for cmd in self.modal.restart_commands(self._safe_z(), s.travel_f, s.rotary_f,
-                                                   s.lift_f):
-                await self._extra(cmd)
-            self._needs_restart = False
-        elif move:
-            for cmd in self.modal.resume_commands(s.retract, s.retract_f, s.travel_f, s.lift_f):
-                await self._extra(cmd)
+        for cmd in self._resume_commands(move):
+            await self._extra(cmd)
+        self._needs_restart = False
+        self._intervention = Need.NONE
         self.state = "streaming"
         self.pause_reason = ""
         self.hooks.resumed(self)
+
+    def note_raw(self, commands: Sequence[str]) -> None:
+        """Raw G-code an operator sends while the job is paused: the resume puts back what
+        it may change (:mod:`hostd.printer.intervention`)."""
+        if self.state == "paused":
+            self._intervention = max(self._intervention, need_of_all(commands))
+
+    def _resume_commands(self, move: bool) -> list[str]:
+        """What brings the machine back to the paused state: after a failed transition or a
+        hand that homed it, re-home and the whole way back; after a move by hand, the way
+        back from a safe height; after a heater changed, the targets; else the way down
+        from the pause's lift (``move``: the pause retracted and lifted)."""
+        s, m, need = self.settings, self.modal, self._intervention
+        if self._needs_restart:
+            need = Need.RESTART
+        out = m.heaters_off_commands() if self._intervention >= Need.HEAT else []
+        if need >= Need.RETURN:
+            out += m.restart_commands(self._safe_z(), s.travel_f, s.rotary_f, s.lift_f,
+                                      home=need is Need.RESTART)
+            if move:  # the pause's retract, undone where the nozzle is back on the part
+                out += ["M83", f"G1 E{s.retract:.4f} F{s.retract_f:.0f}", *m.mode_commands()]
+            return out
+        if need is Need.HEAT:
+            out += m.heat_commands()
+        if move:
+            out += m.resume_commands(s.retract, s.retract_f, s.travel_f, s.lift_f)
+        return out
 
     def _safe_z(self) -> float:
         return safe_z(self.modal.position["Z"], self.program, self.settings)

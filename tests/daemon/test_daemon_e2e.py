@@ -92,6 +92,37 @@ async def test_pause_resume_then_cancel_mid_print(daemon_factory):
     await d.stop()
 
 
+async def test_a_turn_and_a_cooled_hotend_during_a_pause_are_put_back_on_resume(
+        daemon_factory):
+    """The QA turned the platform and switched the hotend off while a job was paused; the
+    resume went on printing at the wrong tilt with the hotend cooling. Now the resume heats
+    the hotend back, turns the platform back from the safe Z and lowers onto the point."""
+    d = daemon_factory()
+    await d.start()
+    text = make_gcode(subparts=1, layers=20, per_layer=200)
+    async with asyncio.timeout(90):
+        c = await d.rpc()
+        await c.call("events.subscribe")
+        job = await c.submit_text("long.gcode", text)
+        await c.until(lambda e: e["event"] == "job.progress" and e["progress"] > 0.1)
+        paused = await c.call("job.pause", id=job["id"])
+        await c.call("printer.gcode", script="G0 A30 C45\nM104 S0")
+        await c.call("job.resume", id=job["id"])
+        await c.until(lambda e: e["event"] == "job.progress"
+                      and e["acked"] > paused["acked_lines"] + 50)
+        position = (await c.call("printer.gcode", script="M114"))["replies"][0]["position"]
+        temps = (await c.call("printer.gcode", script="M105"))["replies"][0]["temperatures"]
+        await c.call("job.cancel", id=job["id"])
+        cmds = executed((await c.call("sim.log"))["commands"])
+        await c.close()
+    await d.stop()
+    assert (position["A"], position["C"]) == (0.0, 0.0), position
+    assert temps["T"]["target"] == 210.0, temps
+    turned = cmds.index("G0 A30 C45")
+    back = next(i for i, x in enumerate(cmds) if i > turned and x.startswith("G0 A0.0000"))
+    assert "M109 S210" in cmds[turned:back]  # hot again before the nozzle goes down
+
+
 async def test_two_jobs_run_in_submission_order(daemon_factory):
     d = daemon_factory()
     await d.start()
