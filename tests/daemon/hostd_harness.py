@@ -95,6 +95,14 @@ class Rpc:
     async def submit_text(self, name: str, text: str) -> dict[str, Any]:
         return await self.call("job.submit", name=name, data=text, encoding="text")
 
+    async def printing(self, text: str, progress: float = 0.1) -> dict[str, Any]:
+        """Subscribe, submit ``text`` as ``long.gcode`` and wait until a ``progress`` share
+        of it is acknowledged; the job."""
+        await self.call("events.subscribe")
+        job = await self.submit_text("long.gcode", text)
+        await self.until(lambda e: e["event"] == "job.progress" and e["progress"] > progress)
+        return job
+
     async def until(self, pred: Any) -> dict[str, Any]:
         """The first pushed event satisfying ``pred``."""
         while True:

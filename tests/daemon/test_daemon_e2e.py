@@ -58,9 +58,7 @@ async def test_pause_resume_then_cancel_mid_print(daemon_factory):
     text = make_gcode(subparts=1, layers=20, per_layer=200)
     async with asyncio.timeout(90):
         c = await d.rpc()
-        await c.call("events.subscribe")
-        job = await c.submit_text("long.gcode", text)
-        await c.until(lambda e: e["event"] == "job.progress" and e["progress"] > 0.1)
+        job = await c.printing(text)
         paused = await c.call("job.pause", id=job["id"])
         assert paused["state"] == "paused"
         n = paused["acked_lines"]
@@ -102,9 +100,7 @@ async def test_a_turn_and_a_cooled_hotend_during_a_pause_are_put_back_on_resume(
     text = make_gcode(subparts=1, layers=20, per_layer=200)
     async with asyncio.timeout(90):
         c = await d.rpc()
-        await c.call("events.subscribe")
-        job = await c.submit_text("long.gcode", text)
-        await c.until(lambda e: e["event"] == "job.progress" and e["progress"] > 0.1)
+        job = await c.printing(text)
         paused = await c.call("job.pause", id=job["id"])
         await c.call("printer.gcode", script="G0 A30 C45\nM104 S0")
         await c.call("job.resume", id=job["id"])
