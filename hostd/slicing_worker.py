@@ -110,14 +110,18 @@ def _summary(result: Any) -> dict[str, Any]:
             "filament_mm": float(est["filament_mm"]), "time_s": float(est["time_s"]),
             "replay": {k: v for k, v in result.replay.items()
                        if isinstance(v, int | float)},
-            "merged_shells": int(result.merged_shells)}
+            "merged_shells": int(result.merged_shells),
+            "base_note": result.base_note}
 
 
 def sliced_reason(info: dict[str, Any]) -> str:
-    """The job's reason for READY after a slice: ``"sliced"``, and the shells merged."""
+    """The job's reason for READY after a slice: ``"sliced"``, the shells merged, and the
+    face the part was turned to stand on (or a much larger one it could stand on)."""
     merged = int(info.get("merged_shells") or 0)
-    return (f"sliced; merged {merged} overlapping shells of the file into one solid" if merged
-            else "sliced")
+    parts = ["sliced"] + (
+        [f"merged {merged} overlapping shells of the file into one solid"] if merged else [])
+    note = info.get("base_note")
+    return "; ".join(parts + ([str(note)] if note else []))
 
 
 class SlicingWorker:

@@ -27,6 +27,7 @@ from kinematics.machine import MachineGeometry
 from kinematics.orient import nearest_reachable_direction
 from slicer.buildorder import MERGE_ANGLE, Groups, group_regions_refined, root_region
 from slicer.mesh_io import (
+    BaseChoice,
     canonical_mesh,
     check_size,
     place_on_platform,
@@ -142,6 +143,9 @@ class Decomposition:
         One line per attempt, in the order tried (seed, K, outcome).
     overhang : list of Overhang
         Overhanging surface of every sub-part (:mod:`slicer.overhang`).
+    base : BaseChoice or None
+        The flat face it stands on and the faces tried (:func:`slicer.bases.decompose_on_bases`;
+        None from :func:`decompose`, which takes the part as placed).
     """
 
     placement: np.ndarray
@@ -156,6 +160,7 @@ class Decomposition:
     seed: int = 0
     attempts: list[str] = field(default_factory=list)
     overhang: list[Overhang] = field(default_factory=list)
+    base: BaseChoice | None = None
 
     @property
     def overhang_deg(self) -> float:
@@ -186,6 +191,7 @@ class Decomposition:
             "overhang_deg": TOL.overhang_deg,
             "subparts": [_subpart_json(s, o) for s, o in
                          zip(self.subparts, self._overhangs(), strict=True)],
+            **({} if self.base is None else {"base": self.base.to_json()}),
         }
 
 

@@ -26,6 +26,7 @@ import numpy as np
 import trimesh
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from slicer.planes2d import TOL
 from slicer.samples import to_manifold, to_trimesh
@@ -68,6 +69,38 @@ class Placement:
     base_area: float
     base_normal: np.ndarray
     merged_shells: int = 0
+
+
+@dataclass(frozen=True)
+class BaseChoice:
+    """Which flat face a decomposed part stands on, and why (:mod:`slicer.bases`).
+
+    Attributes
+    ----------
+    area : float
+        Area of the face it stands on, mm².
+    normal : (3,) float
+        That face's outward normal in the file's frame.
+    turn : (4, 4) float or None
+        Placed frame as loaded → the frame it stands in (:func:`moved` gives the mesh), or
+        None when it stands as loaded.
+    note : str or None
+        One line for the user: why it was turned, or a much larger flat face it could stand
+        on; None when there is nothing to say.
+    tried : tuple of str
+        One line per face tried, in order (face, outcome).
+    """
+
+    area: float
+    normal: np.ndarray
+    turn: np.ndarray | None = None
+    note: str | None = None
+    tried: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, object]:
+        """The ``base`` entry of ``decomposition.json``."""
+        return {"area_mm2": self.area, "normal_in_file": np.asarray(self.normal).tolist(),
+                "turned": self.turn is not None, "note": self.note, "tried": list(self.tried)}
 
 
 def load_mesh(path: str | Path, build_volume: np.ndarray | None = None,
@@ -291,12 +324,31 @@ def _fix_orientation(mesh: trimesh.Trimesh) -> None:
         mesh.invert()
 
 
+@dataclass(frozen=True)
+class FlatBase:
+    """A flat region of the surface on a supporting plane: a base the part can stand on.
+
+    Attributes
+    ----------
+    normal : (3,) float
+        Outward unit normal of the plane, in the frame of the mesh it was found on.
+    area : float
+        Area of the faces on the plane, mm².
+    faces : (m,) int
+        Those faces.
+    """
+
+    normal: np.ndarray
+    area: float
+    faces: np.ndarray
+
+
 def find_base(mesh: trimesh.Trimesh) -> tuple[np.ndarray, float, np.ndarray]:
     """The flat base: the largest downward planar region at the lowest height.
 
     The part's own orientation is tried first (faces facing -Z at the lowest z); when it has
     no flat bottom, the planes of the convex hull are tried and the one holding the most
-    coplanar face area wins.
+    coplanar face area wins (the first of :func:`flat_bases`).
 
     Returns
     -------
@@ -311,13 +363,60 @@ def find_base(mesh: trimesh.Trimesh) -> tuple[np.ndarray, float, np.ndarray]:
     faces, area = _faces_on_plane(mesh, down)
     if area >= MIN_BASE_AREA:
         return down, area, faces
-    best = (down, 0.0, faces)
-    hull = mesh.convex_hull
-    for normal in hull.facets_normal if len(hull.facets) else hull.face_normals:
-        f, a = _faces_on_plane(mesh, normal)
-        if a > best[1]:
-            best = (np.asarray(normal, dtype=float), a, f)
-    return best
+    bases = flat_bases(mesh, min_area=0.0)
+    if not bases or bases[0].area <= area:
+        return down, area, faces
+    return bases[0].normal, bases[0].area, bases[0].faces
+
+
+def flat_bases(mesh: trimesh.Trimesh, min_area: float = MIN_BASE_AREA) -> list[FlatBase]:
+    """Every flat region on a plane of the convex hull, largest first.
+
+    A face lies on the hull plane with outward normal n when its own normal is within 1° of n
+    (:data:`NORMAL_COS`) and its centroid within :data:`PLANE_TOL` of the plane. Face/plane
+    pairs come from a KD-tree over the normals (no faces × planes matrix). Regions of equal
+    area keep the order of the hull's planes (its facets, then its faces in no facet), so the
+    order depends on the shape only.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        Watertight, n faces.
+    min_area : float
+        Smallest area kept, mm² (regions of no area are never kept).
+
+    Returns
+    -------
+    list of FlatBase
+        Regions of at least ``min_area``, by decreasing area.
+    """
+    normals, heights = _hull_planes(mesh.convex_hull)
+    chord = 2.0 * np.sin(np.arccos(NORMAL_COS) / 2.0)  # 1° between unit vectors
+    pairs = cKDTree(mesh.face_normals).sparse_distance_matrix(
+        cKDTree(normals), chord, output_type="ndarray")
+    face, plane = pairs["i"].astype(np.int64), pairs["j"].astype(np.int64)
+    cos = np.einsum("ij,ij->i", mesh.face_normals[face], normals[plane])
+    gap = np.einsum("ij,ij->i", mesh.triangles_center[face], normals[plane]) - heights[plane]
+    keep = (cos >= NORMAL_COS) & (np.abs(gap) <= PLANE_TOL)
+    face, plane = face[keep], plane[keep]
+    area = np.bincount(plane, weights=mesh.area_faces[face], minlength=len(normals))
+    ranked = np.argsort(-np.round(area, 6), kind="stable")
+    ranked = ranked[(area[ranked] >= min_area) & (area[ranked] > 0.0)]
+    return [FlatBase(normals[j], float(area[j]), np.sort(face[plane == j])) for j in ranked]
+
+
+def _hull_planes(hull: trimesh.Trimesh) -> tuple[np.ndarray, np.ndarray]:
+    """Outward unit normals (h, 3) and heights (h,) of the planes of a convex hull: its
+    facets (coplanar faces), then its faces in no facet."""
+    alone = np.ones(len(hull.faces), dtype=bool)
+    if len(hull.facets):
+        alone[np.concatenate(hull.facets)] = False
+        normals = np.vstack([hull.facets_normal, hull.face_normals[alone]])
+        points = np.vstack([hull.facets_origin, hull.triangles[alone, 0]])
+    else:
+        normals, points = hull.face_normals, hull.triangles[:, 0]
+    normals = np.asarray(normals, dtype=float)
+    return normals, np.einsum("ij,ij->i", np.asarray(points, dtype=float), normals)
 
 
 def _faces_on_plane(mesh: trimesh.Trimesh, normal: np.ndarray) -> tuple[np.ndarray, float]:
@@ -329,10 +428,23 @@ def _faces_on_plane(mesh: trimesh.Trimesh, normal: np.ndarray) -> tuple[np.ndarr
     return idx, float(mesh.area_faces[idx].sum())
 
 
-def place_on_platform(mesh: trimesh.Trimesh, name: str = "<mesh>"
-                      ) -> tuple[trimesh.Trimesh, Placement]:
-    """Turn the base down onto z = 0 with its area centroid on the platform centre."""
-    normal, area, faces = find_base(mesh)
+def standing_base(mesh: trimesh.Trimesh) -> FlatBase:
+    """The faces a placed part stands on: facing -Z on its lowest plane (z = 0)."""
+    down = np.array([0.0, 0.0, -1.0])
+    faces, area = _faces_on_plane(mesh, down)
+    return FlatBase(down, area, faces)
+
+
+def place_on_platform(mesh: trimesh.Trimesh, name: str = "<mesh>",
+                      base: FlatBase | None = None) -> tuple[trimesh.Trimesh, Placement]:
+    """Turn the base down onto z = 0 with its area centroid on the platform centre.
+
+    ``base`` is the flat region to stand on (one of :func:`flat_bases`); by default the one
+    :func:`find_base` picks.
+    """
+    if base is None:
+        base = FlatBase(*find_base(mesh))
+    normal, area, faces = base.normal, base.area, base.faces
     if area < MIN_BASE_AREA:
         dims = " × ".join(f"{x:.3g}" for x in mesh.extents)
         raise MeshError(f"{name}: no flat base of {MIN_BASE_AREA:g} mm² to stand on (largest "
@@ -345,9 +457,15 @@ def place_on_platform(mesh: trimesh.Trimesh, name: str = "<mesh>"
     shift = np.eye(4)
     shift[:3, 3] = (-centre[0], -centre[1], -verts[:, 2].min())
     matrix = shift @ matrix
+    return moved(mesh, matrix), Placement(matrix, area, np.asarray(normal, dtype=float))
+
+
+def moved(mesh: trimesh.Trimesh, matrix: np.ndarray) -> trimesh.Trimesh:
+    """``mesh`` moved by the 4×4 ``matrix``, in canonical order (:func:`canonical_mesh`):
+    the same matrix always gives the same mesh, wherever it is applied."""
     placed = mesh.copy()
     placed.apply_transform(matrix)
-    return canonical_mesh(placed), Placement(matrix, area, np.asarray(normal, dtype=float))
+    return canonical_mesh(placed)
 
 
 def canonical_mesh(mesh: trimesh.Trimesh) -> trimesh.Trimesh:

@@ -36,7 +36,7 @@ from slicer.settings import ProcessSettings
 
 if TYPE_CHECKING:
     from slicer.decompose import DecomposeSettings
-    from slicer.mesh_io import Placement
+    from slicer.mesh_io import BaseChoice, Placement
 
 T = TypeVar("T")
 
@@ -80,6 +80,10 @@ class SliceResult:
     merged_shells : int
         How many overlapping closed shells of the file were merged into one solid (0: the
         file held one).
+    base_note : str or None
+        Why the part stands on another flat face than its own bottom, or a much larger face
+        it could stand on (:class:`~slicer.mesh_io.BaseChoice`); None when there is nothing
+        to say.
     """
 
     lines: list[str]
@@ -93,6 +97,7 @@ class SliceResult:
     seconds: float = 0.0
     plan: PrintPlan | None = None
     merged_shells: int = 0
+    base_note: str | None = None
 
     def summary(self) -> dict[str, object]:
         """The result without the G-code lines and the plan."""
@@ -116,16 +121,22 @@ def plan_model(mesh: trimesh.Trimesh, placement: np.ndarray, settings: ProcessSe
                geometry: MachineGeometry, head: Printhead,
                decompose_settings: DecomposeSettings | None, planar: bool,
                build_volume: np.ndarray | None = None) -> PrintPlan:
-    """Decompose and plan a placed mesh (or plan it planar, A = C = 0)."""
+    """Decompose and plan a placed mesh (or plan it planar, A = C = 0).
+
+    The decomposition may stand the part on a much larger flat face when it is refused as
+    placed (:func:`slicer.bases.decompose_on_bases`); the plan's ``base.turn`` then moves
+    ``mesh`` to where the plan stands it (:func:`slicer.mesh_io.moved`).
+    """
     from slicer.planner import plan_planar, plan_print
 
     if planar:
         return plan_planar(mesh, settings, geometry, placement)
-    from slicer.decompose import DecomposeSettings, decompose
+    from slicer.bases import decompose_on_bases
+    from slicer.decompose import DecomposeSettings
 
     dec_settings = decompose_settings or DecomposeSettings(
         nozzle_diameter=settings.nozzle_diameter)
-    dec = decompose(mesh, dec_settings, geometry, head, build_volume, placement)
+    dec = decompose_on_bases(mesh, dec_settings, geometry, head, build_volume, placement)
     return plan_print(dec, settings, geometry, head)
 
 
@@ -185,6 +196,9 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         plan = plan_model(mesh, placement.matrix, settings, geometry, head,
                           decompose_settings, planar, build_volume)
         timings["plan"] = time.perf_counter() - t1
+        if plan.base is not None and plan.base.turn is not None:  # stands on another face
+            mesh = _turned(mesh, plan.base, name, platform_radius)
+            index = early.submit(model_index, mesh, settings.line_width) if check else None
         if index is not None:  # and its coverage grid while the G-code is written
             index = early.submit(_with_grid, index, settings)
         travel_ranges = tuple((float(lo), float(hi)) for lo, hi in np.reshape(travel, (3, 2)))
@@ -192,7 +206,22 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         seed = None if planar else (decompose_settings.seed if decompose_settings else 0)
         result = _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name,
                          seed)
-        return replace(result, merged_shells=placement.merged_shells)
+        return replace(result, merged_shells=placement.merged_shells,
+                       base_note=None if plan.base is None else plan.base.note)
+
+
+def _turned(mesh: trimesh.Trimesh, base: BaseChoice, name: str,
+            platform_radius: float) -> trimesh.Trimesh:
+    """``mesh`` stood on the face ``base`` names (the very mesh the decomposition used),
+    refused when it no longer fits the platform."""
+    from slicer.mesh_io import moved
+
+    assert base.turn is not None
+    turned = moved(mesh, base.turn)
+    wide = envelope.footprint_message(envelope.footprint_radius(turned.vertices),
+                                      platform_radius)
+    envelope.refuse(name, None if wide is None else f"{wide} ({base.note})")
+    return turned
 
 
 def _name(mesh_or_path: trimesh.Trimesh | str | Path) -> str:

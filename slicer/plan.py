@@ -7,8 +7,12 @@ along the C axis, the part placed on z = 0). A plan is pure data: numpy arrays a
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from slicer.mesh_io import BaseChoice
 
 PATH_KINDS = ("perimeter", "infill", "solid", "interface")
 
@@ -86,9 +90,14 @@ class SubpartPlan:
 
 @dataclass
 class PrintPlan:
-    """Sub-parts in build order, with the placement that maps STL → platform frame."""
+    """Sub-parts in build order, with the placement that maps STL → platform frame.
+
+    ``base`` is the decomposition's choice of the face it stands on (None for the planar
+    control); when ``base.turn`` is set the part stands on another face than the loader's.
+    """
 
     placement: np.ndarray
     subparts: list[SubpartPlan]
     volume_mm3: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
+    base: BaseChoice | None = None

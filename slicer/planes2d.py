@@ -52,6 +52,10 @@ class Tolerances:
     retry_seeds: int = 4  # further (seed, K) attempts after the configured one
     min_volume_share: float = 1e-3  # a sub-part below this share of the volume is degenerate
     min_base_share: float = 1e-3  # ... or with a base below this share of (volume)^(2/3)
+    base_ratio: float = 4.0  # a flat face this many times the base stood on is much larger:
+    #                          tried when the part as placed is refused or overhangs (over the
+    #                          retry threshold), named in a warning otherwise (slicer.bases)
+    base_tries: int = 2  # at most this many such faces are tried, largest first
     # placement (slicer.mesh_io.canonical_mesh)
     snap_grid: float = 1e-6  # mm: placed vertices are rounded to this grid, so the residue
     #                          of a translation the placement undoes is gone (not a power of

@@ -311,7 +311,7 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
     timer.lap("paths")
     volume = float(getattr(decomposition, "volume", sum(s.mesh.volume for s in subs.values())))
     return PrintPlan(np.asarray(decomposition.placement, dtype=float), plans, volume,
-                     dict(timer.laps))
+                     dict(timer.laps), getattr(decomposition, "base", None))
 
 
 def _built(job: Future, timer: _Timer) -> list[Layer]:

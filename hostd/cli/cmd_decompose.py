@@ -62,12 +62,8 @@ def _bounded(key: str, value: int) -> int:
 def run(args: argparse.Namespace) -> int:
     """Run the decomposition and print a short table."""
     from kinematics.machine import MachineGeometry
-    from slicer.decompose import (
-        DecompositionError,
-        RootRegionError,
-        decompose,
-        write_decomposition,
-    )
+    from slicer.bases import decompose_on_bases
+    from slicer.decompose import DecompositionError, RootRegionError, write_decomposition
     from slicer.mesh_io import MeshError, load_mesh, merged_note
     from slicer.printhead import Printhead, PrintheadError
 
@@ -87,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         mesh, placement = load_mesh(args.model, build_volume, settings.nozzle_diameter)
-        dec = decompose(mesh, settings, machine, head, build_volume, placement.matrix)
+        dec = decompose_on_bases(mesh, settings, machine, head, build_volume, placement.matrix)
     except MeshError as exc:
         raise CliError(str(exc)) from None
     except RootRegionError as exc:
@@ -104,6 +100,8 @@ def run(args: argparse.Namespace) -> int:
         raise CliError(f"{out}: cannot write: {exc.strerror or exc}") from None
     if placement.merged_shells:
         print(merged_note(placement.merged_shells))
+    if dec.base is not None and dec.base.note:
+        print(dec.base.note)
     _table(dec, time.perf_counter() - t0)
     return 0
 

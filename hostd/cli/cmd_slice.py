@@ -120,7 +120,9 @@ def _summary(r: Any, out: Path, seconds: float) -> None:
     if r.merged_shells:
         print(merged_note(r.merged_shells))
     turned = _turned_degrees(r.lines)
-    if turned > 0.5:
+    if r.base_note:  # turned to stand on a larger face, or one is named
+        print(r.base_note)
+    elif turned > 0.5:
         print(f"placed turned {turned:.0f}° from the file's orientation: the part's own "
               "bottom has no flat base to stand on, so it stands on its largest flat face")
     print(f"sub-parts {r.subparts}, layers {r.layers}, local thickness {lo:.3f}–{hi:.3f} mm")

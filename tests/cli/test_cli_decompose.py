@@ -1,10 +1,15 @@
-"""hostctl decompose: its options keep the bounds of the config keys they override."""
+"""hostctl decompose: its options keep the bounds of the config keys they override; a part
+given upside down is stood on its base, or the refusal names it."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import pytest
 
 from hostd.cli.main import main
+
+MODELS = Path(__file__).resolve().parents[3] / "shared" / "models"  # as tests/slicer's
 
 
 @pytest.mark.parametrize(("option", "value", "bounds"), [
@@ -38,3 +43,51 @@ def test_without_config_the_printers_installed_config_is_used(tmp_path, capsys, 
     assert paths.offline_config() == installed
     installed.unlink()
     assert paths.offline_config() == paths.DEFAULT_CONFIG
+
+
+def _upside_down_pipe2(tmp_path):
+    """pipe2 exported turned 180° about X: its base disc on top, the tube's rim down."""
+    import trimesh
+
+    mesh = trimesh.load_mesh(MODELS / "pipe2.stl")
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(3.141592653589793, [1, 0, 0]))
+    path = tmp_path / "pipe2_upside_down.stl"
+    mesh.export(path)
+    return path
+
+
+def test_a_part_upside_down_is_turned_onto_its_base_and_says_why(tmp_path, capsys):
+    """Standing on the tube's 113 mm² rim it is refused; on its 804 mm² disc it decomposes."""
+    import json
+
+    import numpy as np
+
+    out = tmp_path / "o"
+    rc = main(["decompose", str(_upside_down_pipe2(tmp_path)), "-o", str(out), "--no-preview"])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert text.splitlines()[0].startswith(
+        "turned to stand on its 804 mm² face (normal +Z in the file), 180° from the file's "
+        "orientation: standing as placed, on its 113 mm² face (normal -Z in the file), it was "
+        "refused: sub-part 0 overhangs ")
+    record = json.loads((out / "decomposition.json").read_text())
+    assert record["base"]["turned"] is True and record["base"]["normal_in_file"] == [0, 0, 1]
+    assert len(record["base"]["tried"]) == 2 and len(record["subparts"]) == 2
+    matrix = np.array(record["placement"])
+    assert matrix[:3, :3] @ [0.0, 0.0, 1.0] == pytest.approx([0.0, 0.0, -1.0])
+    assert sum(s["overhang_mm2"] for s in record["subparts"]) == pytest.approx(0.0, abs=5.0)
+
+
+def test_with_a_fixed_root_the_refusal_names_the_larger_face(tmp_path, capsys):
+    from hostd.cli.errors import EXIT_FAILED
+
+    model = _upside_down_pipe2(tmp_path)
+    rc = main(["decompose", str(model), "-o", str(tmp_path / "o"), "--root", "0"])
+    err = capsys.readouterr().err.strip()
+    assert rc == EXIT_FAILED and len(err.splitlines()) == 1
+    assert err.startswith(f"hostctl: {model}: sub-part ")
+    assert err.endswith("; the part stands on a 113 mm² face; its largest flat face (804 mm², "
+                        "normal +Z in the file) is 7.1× larger and may decompose: turn the part "
+                        "to stand on it, or leave the root region automatic (no --root) so the "
+                        "slicer tries it")
+    assert not (tmp_path / "o").exists()

@@ -93,3 +93,33 @@ def test_overlapping_shells_slice_as_one_solid_and_say_so(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "merged 2 overlapping shells of the file into one solid" in text
     assert "collisions 0" in text and out.stat().st_size > 0
+
+
+def test_a_pipe_upside_down_slices_standing_on_its_base(tmp_path, capsys):
+    """pipe2 exported turned 180° about X stood on its tube's rim and was refused (exit 1);
+    it is stood on its base disc, says so, and the replay checks it as it stands."""
+    from pathlib import Path
+
+    import numpy as np
+    import trimesh
+
+    mesh = trimesh.load_mesh(Path(__file__).resolve().parents[3] / "shared" / "models"
+                             / "pipe2.stl")
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi, [1.0, 0.0, 0.0]))
+    model, out = tmp_path / "pipe2_upside_down.stl", tmp_path / "p.gcode"
+    mesh.export(model)
+    rc = main(["slice", str(model), "-o", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert ("turned to stand on its 804 mm² face (normal +Z in the file), 180° from the file's "
+            "orientation: standing as placed, on its 113 mm² face (normal -Z in the file), it "
+            "was refused: ") in text
+    assert "placed turned" not in text and "collisions 0" in text and "sub-parts 2" in text
+    inside = re.search(r"replay: inside (\d+\.\d+)%", text)
+    assert inside is not None and float(inside[1]) > 99.0  # checked against the turned part
+    header = next(line for line in out.read_text().splitlines()[:8]
+                  if line.startswith(";HOSTD_PLACEMENT "))
+    matrix = np.array(json.loads(header.split(" ", 1)[1])["matrix"])
+    assert matrix[:3, :3] @ [0.0, 0.0, 1.0] == pytest.approx([0.0, 0.0, -1.0])
+    placed = trimesh.transform_points(mesh.vertices, matrix)
+    assert placed[:, 2].min() == pytest.approx(0.0, abs=1e-6)

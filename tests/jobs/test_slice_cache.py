@@ -75,3 +75,15 @@ def test_the_key_changes_with_the_profile_and_with_the_slicer_code(tmp_path: Pat
     assert key != cache_key("f" * 64, profile, code="0" * 64)  # another slicer
     assert key.startswith("f" * 64 + "-")
     assert len(code_digest()) == 64 and code_digest() == code_digest()
+
+
+def test_the_ready_reason_says_why_the_part_was_turned():
+    from hostd.slicing_worker import sliced_reason
+
+    note = "turned to stand on its 804 mm² face (normal +Z in the file), 180° from ..."
+    assert sliced_reason({"merged_shells": 0, "base_note": None}) == "sliced"
+    assert sliced_reason({"merged_shells": 0, "base_note": note}) == f"sliced; {note}"
+    assert sliced_reason({"merged_shells": 2, "base_note": note}) == (
+        f"sliced; merged 2 overlapping shells of the file into one solid; {note}")
+    assert sliced_reason({"merged_shells": 2}) == (
+        "sliced; merged 2 overlapping shells of the file into one solid")
