@@ -30,6 +30,7 @@ log = logging.getLogger(__name__)
 PROFILE_SECTIONS = ("machine", "printhead", "process", "decompose")
 """Config sections that change the sliced output (and so the cache key)."""
 CODE_PACKAGES = ("slicer", "kinematics")
+CANCELLED = "slicing stopped: the job was cancelled"
 """Packages whose source changes the sliced output (and so the cache key)."""
 
 
@@ -149,6 +150,7 @@ class SlicingWorker:
         self.active = 0
         self.cancelled = 0
         self._cancelling = False
+        self._running = False  # a slice runs in the worker process (not a cache look-up)
 
     async def slice(self, stl_path: Path, stl_sha: str, name: str | None = None
                     ) -> SliceOutcome:
@@ -156,28 +158,33 @@ class SlicingWorker:
         sliced in the worker; :class:`SliceError` naming the upload ``name``."""
         key = cache_key(stl_sha, self.profile, self.code)
         out = self.cache.gcode_path(key)
-        info = await asyncio.to_thread(self.cache.lookup, key)
-        if info is not None:
-            self.cache_hits += 1
-            return SliceOutcome(out, True, 0.0, info)
-        started = time.monotonic()
-        self.active += 1
+        self.active += 1  # from here a cancel counts: one during the look-up stops the slice
         self._cancelling = False
         try:
+            info = await asyncio.to_thread(self.cache.lookup, key)
+            if info is not None:
+                self.cache_hits += 1
+                return SliceOutcome(out, True, 0.0, info)
+            if self._cancelling:
+                raise SliceError(CANCELLED)
+            started = time.monotonic()
+            self._running = True
             info = await self.process.run(slice_in_worker, str(stl_path), self.values, str(out),
                                           name)
         except WorkerDied:
             for tmp in out.parent.glob(f"{out.name}.*.tmp"):  # the dead worker's partial file
                 tmp.unlink(missing_ok=True)
             if self._cancelling:
-                raise SliceError("slicing stopped: the job was cancelled") from None
+                raise SliceError(CANCELLED) from None
             self.failures += 1
             raise SliceError("the slicing worker died (out of memory?)") from None
-        except SliceError:
-            self.failures += 1
+        except SliceError as exc:
+            if exc.args != (CANCELLED,):
+                self.failures += 1
             raise
         finally:
             self.active -= 1
+            self._running = False
         duration = time.monotonic() - started
         self.durations.observe(duration)
         self.last_duration_s = duration
@@ -195,7 +202,8 @@ class SlicingWorker:
             return False
         self._cancelling = True
         self.cancelled += 1
-        self.process.kill()
+        if self._running:  # else the slice stops before it starts
+            self.process.kill()
         return True
 
     def close(self) -> None:
