@@ -23,6 +23,7 @@ from hostd.cli.errors import (
     EXIT_INTERRUPTED,
     EXIT_OK,
     EXIT_REFUSED,
+    EXIT_UNREACHABLE,
     EXIT_USAGE,
     CliError,
 )
@@ -139,11 +140,32 @@ def cmd_print(args: argparse.Namespace) -> int:
         try:  # from here on the job exists: Ctrl-C leaves it printing, and says so
             if not args.json:
                 _say_held(c)
-            final = _follow(c, job, args.json)
+            final, reason = _follow(c, job, args.json)
+            if args.json:
+                _emit_final(c, job["id"], final, reason)
         except KeyboardInterrupt:
             raise CliError(f"interrupted: job {job['id']} goes on (hostctl watch follows it; "
                            f"hostctl cancel {job['id']} stops it)", EXIT_INTERRUPTED) from None
     return EXIT_OK if final == "completed" else EXIT_FAILED
+
+
+def _emit_final(c: Client, job_id: int, state: str, reason: str) -> None:
+    """``print --wait --json`` once the job ended: the job as ``job.get`` gives it on stdout;
+    when it did not complete, :class:`CliError` (exit 1) with the text mode's last line."""
+    ended = f"job {job_id} {state}: {reason}" + (
+        f"; {_resume_hint(job_id)}" if state == "interrupted" else "")
+    try:
+        _emit_json(c.call("job.get", id=job_id))
+    except CliError as exc:  # hostd stopped (the job interrupted) before it answered
+        if state == "completed" or exc.code != EXIT_UNREACHABLE:
+            raise
+        raise CliError(f"{ended} ({exc})", EXIT_FAILED) from None
+    if state != "completed":
+        raise CliError(ended, EXIT_FAILED)
+
+
+def _resume_hint(job_id: int) -> str:
+    return f"resume it with: hostctl resume {job_id} [--from layer|subpart|checkpoint]"
 
 
 def _upload_size(path: Path) -> int:
@@ -197,40 +219,45 @@ def _upload_progress(name: str) -> Callable[[int, int], None] | None:
     return show
 
 
-def _follow(c: Client, job: dict[str, Any], as_json: bool) -> str:
+def _follow(c: Client, job: dict[str, Any], quiet: bool) -> tuple[str, str]:
+    """Follow the job's events until it ends: its final state and reason. Progress and
+    state changes are shown on stdout unless ``quiet``."""
     job_id, state = job["id"], job["state"]
     bar = ProgressBar(sys.stdout, job_id, job["name"])
     bar.state = state
     if state in FINAL:
-        return str(state)
+        return str(state), str(job.get("reason") or "")
     for event, data in c.events():
         if event == "queue.state":  # the job waits for the platform (or may go now)
-            if data.get("held") and bar.state in ("queued", "slicing", "ready") and not as_json:
+            if data.get("held") and bar.state in ("queued", "slicing", "ready") and not quiet:
                 bar.line_break(f"queue held: {data.get('reason')}")
             continue
         if data.get("job_id") != job_id:
             continue
-        if as_json:
-            _emit_json({"event": event, **data})
         if event == "job.state":
             bar.state = data["new"]
             bar.reason = data.get("reason", "")
-            if not as_json:
-                bar.line_break(f"job {job_id} {data['new']}: {data.get('reason', '')}")
+            if not quiet:
+                bar.line_break(f"job {job_id} {data['new']}: {bar.reason}")
                 if data["new"] == "interrupted":
-                    bar.line_break(f"resume it with: hostctl resume {job_id} "
-                                   "[--from layer|subpart|checkpoint]")
+                    bar.line_break(_resume_hint(job_id))
             if data["new"] in FINAL:
-                return str(data["new"])
-        elif event == "job.progress" and not as_json:
-            bar.update(data)
-        elif event == "subpart_started" and not as_json:
-            bar.line_break(f"sub-part {data.get('subpart')} started at A {data.get('a')} "
-                           f"C {data.get('c')} (checkpoint)")
-        elif event == "transition_failed" and not as_json:
-            bar.line_break(f"transition to sub-part {data.get('subpart')} failed: "
-                           f"{data.get('reason')}")
-    return "interrupted"
+                return str(data["new"]), str(bar.reason or "")
+        elif not quiet:
+            _show_job_event(bar, event, data)
+    return "interrupted", ""
+
+
+def _show_job_event(bar: ProgressBar, event: str, data: dict[str, Any]) -> None:
+    """A job event other than a state change, on the progress bar's terminal."""
+    if event == "job.progress":
+        bar.update(data)
+    elif event == "subpart_started":
+        bar.line_break(f"sub-part {data.get('subpart')} started at A {data.get('a')} "
+                       f"C {data.get('c')} (checkpoint)")
+    elif event == "transition_failed":
+        bar.line_break(f"transition to sub-part {data.get('subpart')} failed: "
+                       f"{data.get('reason')}")
 
 
 class ProgressBar:

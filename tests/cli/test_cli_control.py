@@ -123,22 +123,29 @@ async def test_hostctl_sends_a_large_file_in_parts(tmp_path):
             await d.stop()
 
 
+async def print_wait_until_hostd_stops(d: DaemonProc, *options: str) -> tuple[int, str, str]:
+    """``hostctl print --wait`` of a long job, and hostd stopped (SIGTERM) mid-print."""
+    gcode = d.tmp / "long.gcode"
+    gcode.write_text(make_gcode(subparts=1, layers=20, per_layer=200))
+    await d.start()
+    watcher = await d.rpc()
+    await watcher.call("events.subscribe", events=["job.progress"])
+    printing = asyncio.create_task(hostctl(d.socket, "print", str(gcode), "--wait",
+                                           *options))
+    await watcher.until(lambda e: e["progress"] > 0.05)
+    await d.stop()
+    done = await printing
+    await watcher.close()
+    return done
+
+
 @pytest.mark.asyncio
 async def test_print_wait_tells_how_to_resume_when_hostd_stops_mid_print(tmp_path):
     """hostd stopped (SIGTERM) mid-print: ``hostctl print --wait`` shows the job interrupted,
     and how to resume it, not a bare lost connection."""
     d = DaemonProc(tmp_path, sim__throttle=True)
-    gcode = tmp_path / "long.gcode"
-    gcode.write_text(make_gcode(subparts=1, layers=20, per_layer=200))
     async with asyncio.timeout(90):
-        await d.start()
-        watcher = await d.rpc()
-        await watcher.call("events.subscribe", events=["job.progress"])
-        printing = asyncio.create_task(hostctl(d.socket, "print", str(gcode), "--wait"))
-        await watcher.until(lambda e: e["progress"] > 0.05)
-        await d.stop()
-        rc, out, err = await printing
-        await watcher.close()
+        rc, out, err = await print_wait_until_hostd_stops(d)
     assert rc == 1, err
     lines = out.splitlines()
     assert lines[-2].startswith("job 1 interrupted: daemon stopped (SIGTERM) at line ")
@@ -388,3 +395,42 @@ async def test_ctrl_c_of_print_wait_says_the_job_goes_on_and_estop_takes_json(tm
         rc, out, _ = await hostctl(d.socket, "firmware-restart", "--json")
         assert rc == 0 and json.loads(out) == {"link": "ready"}
         await watcher.close()
+
+
+@pytest.mark.asyncio
+async def test_print_wait_json_prints_only_the_final_job_and_a_failure_on_stderr(tmp_path):
+    """``print --wait --json``: stdout holds one JSON document, the job as ``job.get`` gives
+    it once the job ended (no event stream); a job that failed exits 1 with one line on
+    stderr, in the words of the text mode's last line."""
+    import trimesh
+
+    part = tmp_path / "part.gcode"
+    part.write_text(make_gcode(subparts=1, layers=2, per_layer=20))
+    wide = tmp_path / "wide.stl"  # wider than the platform: its slice fails
+    trimesh.creation.box([400.0, 400.0, 10.0]).export(wide, file_type="stl")
+    async with asyncio.timeout(90), running(tmp_path, daemon__next_job="at_once") as d:
+        rc, out, err = await hostctl(d.socket, "print", str(part), "--wait", "--json")
+        assert (rc, err) == (0, "")
+        c = await d.rpc()
+        assert json.loads(out) == await c.call("job.get", id=1)  # one document: the job
+        assert json.loads(out)["state"] == "completed" and "history" in json.loads(out)
+        rc, out, err = await hostctl(d.socket, "print", str(wide), "--wait", "--json")
+        job = json.loads(out)
+        assert rc == 1 and job == await c.call("job.get", id=2) and job["state"] == "failed"
+        assert err == f"hostctl: job 2 failed: {job['reason']}\n"
+        assert "does not fit" in job["reason"]
+        await c.close()
+
+
+@pytest.mark.asyncio
+async def test_print_wait_json_says_how_to_resume_when_hostd_stops_mid_print(tmp_path):
+    """hostd stopped mid-print under ``print --wait --json``: exit 1, one line on stderr
+    naming the job interrupted and how to resume it; stdout holds the job or nothing (hostd
+    may close the connection before it answers ``job.get``), never events."""
+    d = DaemonProc(tmp_path, sim__throttle=True)
+    async with asyncio.timeout(90):
+        rc, out, err = await print_wait_until_hostd_stops(d, "--json")
+    assert rc == 1 and err.count("\n") == 1, err
+    assert err.startswith("hostctl: job 1 interrupted: daemon stopped (SIGTERM) at line ")
+    assert "resume it with: hostctl resume 1 [--from layer|subpart|checkpoint]" in err
+    assert out == "" or json.loads(out)["state"] == "interrupted"
