@@ -377,10 +377,10 @@ def _count(text: str) -> int:
 def cmd_jobs(args: argparse.Namespace) -> int:
     with _client(args) as c:
         listed = c.call("job.list", limit=args.limit)
-    jobs = listed["jobs"]
     if args.json:
-        _emit_json(jobs)
+        _emit_json(listed)  # {jobs, total}: how many were left out, too
         return EXIT_OK
+    jobs = listed["jobs"]
     if not jobs:
         print("no jobs")
     older = listed.get("total", len(jobs)) - len(jobs)

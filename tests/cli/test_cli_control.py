@@ -45,8 +45,8 @@ async def test_hostctl_verbs_and_exit_codes(tmp_path):
             assert rc == 0, err
             assert "job 1 completed" in out and "100.0%" in out
             rc, out, _ = await hostctl(d.socket, "jobs", "--json")
-            jobs = json.loads(out)
-            assert rc == 0 and jobs[0]["state"] == "completed"
+            listed = json.loads(out)
+            assert rc == 0 and listed["total"] == 1 and listed["jobs"][0]["state"] == "completed"
             rc, out, _ = await hostctl(d.socket, "status", "--json")
             assert rc == 0 and json.loads(out)["jobs"]["finished"]["completed"] == 1
             rc, out, _ = await hostctl(d.socket, "status")
@@ -73,14 +73,18 @@ async def test_hostctl_verbs_and_exit_codes(tmp_path):
             shown = [int(line.split()[0]) for line in out.splitlines()[1:]]
             assert rc == 0 and shown == [2, 3]  # the newest, oldest first
             assert out.splitlines()[0].startswith("(1 older jobs not shown")
+            rc, out, _ = await hostctl(d.socket, "jobs", "--limit", "2", "--json")
+            listed = json.loads(out)  # job.list's result: how many were left out too
+            assert rc == 0 and [j["id"] for j in listed["jobs"]] == [2, 3]
+            assert listed["total"] == 3
             rc, out, _ = await hostctl(d.socket, "jobs", "--limit", "0", "--json")
-            assert rc == 0 and [j["id"] for j in json.loads(out)] == [1, 2, 3]
+            assert rc == 0 and [j["id"] for j in json.loads(out)["jobs"]] == [1, 2, 3]
             rc, _, err = await hostctl(d.socket, "jobs", "--limit", "-1")
             assert rc == 2 and "whole number" in err
             rc, out, _ = await hostctl(d.socket, "delete", "1")
             assert rc == 0 and out.strip() == "job 1 deleted"
             rc, out, _ = await hostctl(d.socket, "jobs", "--limit", "0", "--json")
-            assert [j["id"] for j in json.loads(out)] == [2, 3]
+            assert [j["id"] for j in json.loads(out)["jobs"]] == [2, 3]
             rc, _, err = await hostctl(d.socket, "delete", "1")
             assert rc == 4 and "1" in err
         finally:
@@ -344,7 +348,7 @@ async def test_a_job_name_with_a_newline_is_refused_at_submit(tmp_path):
         rc, _, err = await hostctl(d.socket, "print", str(odd))
         assert rc == 2 and "control character" in err and err.count("\n") == 1
         rc, out, _ = await hostctl(d.socket, "jobs", "--json")
-        assert rc == 0 and json.loads(out) == []
+        assert rc == 0 and json.loads(out) == {"jobs": [], "total": 0}
 
 
 @pytest.mark.asyncio
@@ -367,7 +371,8 @@ async def test_print_of_a_corrupt_ascii_stl_exits_2_naming_its_line_and_the_prin
         assert (rc, out) == (2, "")
         assert err == "hostctl: bad.stl: not a readable STL file (line 5: 'vertex 1 0 x0')\n"
         rc, out, _ = await hostctl(d.socket, "jobs", "--json")
-        assert rc == 0 and [(j["id"], j["state"]) for j in json.loads(out)] == [(1, "printing")]
+        listed = json.loads(out)["jobs"]
+        assert rc == 0 and [(j["id"], j["state"]) for j in listed] == [(1, "printing")]
         await watcher.close()
 
 
