@@ -12,7 +12,6 @@ import base64
 import json
 import stat
 import sys
-import unicodedata
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -27,7 +26,7 @@ from hostd.cli.errors import (
     EXIT_USAGE,
     CliError,
 )
-from hostd.control.rpc import CONTROL_CATEGORIES, control_character
+from hostd.cli.text import event_text, printable
 
 FINAL = {"completed", "failed", "cancelled", "interrupted"}
 PART_BYTES = 3 << 16
@@ -393,16 +392,6 @@ def cmd_jobs(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def printable(text: Any) -> str:
-    """``text`` on one line: control characters escaped (``\\n``, ``\\x1b``), as a name
-    stored before the daemon refused them would otherwise break the listing."""
-    text = str(text)
-    if control_character(text) is None:
-        return text
-    return "".join(ch.encode("unicode_escape").decode("ascii")
-                   if unicodedata.category(ch) in CONTROL_CATEGORIES else ch for ch in text)
-
-
 def _show_job(job: dict[str, Any], as_json: bool) -> None:
     if as_json:
         _emit_json(job)
@@ -494,6 +483,5 @@ def cmd_watch(args: argparse.Namespace) -> int:
             if args.json:
                 _emit_json({"event": event, **data})
             else:
-                rest = " ".join(f"{k}={v}" for k, v in data.items() if k != "event")
-                print(f"{event} {rest}", flush=True)
+                print(event_text(event, data), flush=True)
     return EXIT_OK
