@@ -40,19 +40,19 @@ JOBS_SHOWN = 20
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("print", help="upload FILE (STL or G-code) and print it")
-    p.add_argument("file")
+    p.add_argument("file", help="the STL or G-code file to print")
     p.add_argument("--wait", action="store_true", help="show progress until the job ends")
     p.add_argument("--kind", choices=("stl", "gcode"),
                    help="what FILE is, when its extension does not say (.stl, .gcode)")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
+    _json_flag(p, "the job (with --wait: as job.get gives it, once the job ended)")
     p.set_defaults(func=cmd_print)
 
     p = subparsers.add_parser("status", help="printer and current job")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "printer.status's snapshot of every component")
     p.set_defaults(func=cmd_status)
 
     p = subparsers.add_parser("jobs", help="the job list (the newest jobs)")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "job.list's {jobs, total} (total: every job, also those not shown)")
     p.add_argument("--limit", type=_count, default=JOBS_SHOWN, metavar="N",
                    help=f"show the newest N jobs (default {JOBS_SHOWN}; 0: all)")
     p.set_defaults(func=cmd_jobs)
@@ -60,47 +60,59 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     for verb, helptext in (("pause", "pause the current job"),
                            ("cancel", "cancel a job (default: the current one)")):
         p = subparsers.add_parser(verb, help=helptext)
-        p.add_argument("id", nargs="?", type=int)
-        p.add_argument("--json", action="store_true")
+        p.add_argument("id", nargs="?", type=int,
+                       help="job id (default: the job on the printer)")
+        _json_flag(p, "the job")
         p.set_defaults(func=cmd_job_verb, method=f"job.{verb}")
 
     p = subparsers.add_parser("resume", help="resume a paused or interrupted job")
-    p.add_argument("id", nargs="?", type=int)
+    p.add_argument("id", nargs="?", type=int,
+                   help="job id (default: the job on the printer, else the last paused or "
+                        "interrupted one)")
     p.add_argument("--from", dest="scope", default=None,
                    choices=("layer", "subpart", "checkpoint"),
                    help="for an interrupted job: restart at the start of its layer (default), "
                         "of its sub-part, or at its last checkpoint (these two print again "
                         "the layers of the sub-part already done)")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "the job")
     p.set_defaults(func=cmd_resume)
 
     p = subparsers.add_parser("send", help="send raw G-code lines")
-    p.add_argument("gcode", nargs="+")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("gcode", nargs="+", metavar="GCODE",
+                   help='one G-code line per argument: quote a command with its parameters '
+                        '(hostctl send "M104 S200" M105)')
+    _json_flag(p, "{commands, replies, errors}")
     p.set_defaults(func=cmd_send)
 
     p = subparsers.add_parser("delete", help="forget a finished job and its files")
-    p.add_argument("id", type=int)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("id", type=int, help="job id (a finished job: not printing or paused)")
+    _json_flag(p, "{deleted: ID}")
     p.set_defaults(func=cmd_delete)
 
     p = subparsers.add_parser("estop", help="emergency stop (M112)")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "{stopped: true}")
     p.set_defaults(func=cmd_estop)
     p = subparsers.add_parser("firmware-restart",
                               help="reset the firmware and reconnect (after estop or a halt)")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "{link}")
     p.set_defaults(func=cmd_firmware_restart)
 
     p = subparsers.add_parser("queue", help="show the queue hold, or start/hold the queue "
                               "(start: the platform is clear, the next job may print)")
-    p.add_argument("action", nargs="?", choices=("start", "hold"))
-    p.add_argument("--json", action="store_true")
+    p.add_argument("action", nargs="?", choices=("start", "hold"),
+                   help="start: the platform is clear, lift the hold; hold: start no new "
+                        "job (default: show the hold)")
+    _json_flag(p, "{held, reason, ready, next_job}")
     p.set_defaults(func=cmd_queue)
 
     p = subparsers.add_parser("watch", help="print the daemon's event stream")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "each event as the daemon sends it, one per line,")
     p.set_defaults(func=cmd_watch)
+
+
+def _json_flag(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--json", action="store_true",
+                   help=f"print {what} as JSON on stdout (an error stays one line on stderr)")
 
 
 def _client(args: argparse.Namespace, timeout: float | None = 30.0) -> Client:
