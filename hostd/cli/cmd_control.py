@@ -10,13 +10,15 @@ from __future__ import annotations
 import argparse
 import base64
 import json
+import re
+import shlex
 import stat
 import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from hostd.cli.client import Client, socket_path
+from hostd.cli.client import Client, RpcFailure, socket_path
 from hostd.cli.errors import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
@@ -426,9 +428,24 @@ def cmd_resume(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+PARAMETER = re.compile(r"[A-FH-LO-SU-Z]([-+]?(\d+\.?\d*|\.\d+))?", re.IGNORECASE)
+"""A word that is a command's parameter (``S200``, ``X``), not a command: any letter but
+G, M, T (a tool change) and N (a line number), and a number or none."""
+TOOL = re.compile(r"T\d+", re.IGNORECASE)
+"""A tool change, or the tool parameter of an M-code (``M104 T0 S200``)."""
+NOT_GCODE = "is not a G-code command"
+"""How the daemon refuses a line that does not start with a command."""
+
+
 def cmd_send(args: argparse.Namespace) -> int:
-    with _client(args, timeout=600.0) as c:
-        res = c.call("printer.gcode", timeout=600.0, script="\n".join(args.gcode))
+    try:
+        with _client(args, timeout=600.0) as c:
+            res = c.call("printer.gcode", timeout=600.0, script="\n".join(args.gcode))
+    except RpcFailure as exc:
+        hint = _quoting_hint(args.gcode) if NOT_GCODE in str(exc) else None
+        if hint is None:
+            raise
+        raise CliError(f"{exc}; {hint}", exc.code) from None
     if args.json:
         _emit_json(res)
     else:
@@ -441,6 +458,38 @@ def cmd_send(args: argparse.Namespace) -> int:
         raise CliError(f"the firmware refused {first['command']}: {first['reply']}{more}",
                        EXIT_REFUSED)
     return EXIT_OK
+
+
+def _quoting_hint(lines: list[str]) -> str | None:
+    """``quote a command with its parameters: hostctl send G90 "M104 S200"`` when an
+    argument of ``hostctl send`` looks like the parameter of the one before (each argument
+    is one line: the words are not joined, a ``T0`` could be either), else None."""
+    groups: list[list[str]] = []
+    for word in lines:
+        if groups and _parameter_of(groups[-1], word):
+            groups[-1].append(word)
+        else:
+            groups.append([word])
+    if len(groups) == len(lines):
+        return None
+    quoted = [_shell_word(" ".join(g)) for g in groups]
+    return f"quote a command with its parameters: hostctl send {' '.join(quoted)}"
+
+
+def _parameter_of(command: list[str], word: str) -> bool:
+    """Whether ``word`` reads as a parameter of the ``command`` words (for the hint only):
+    a T word is an M-code's tool (``M104 T0``) if it has none yet, else a tool change."""
+    if PARAMETER.fullmatch(word):
+        return True
+    return (bool(TOOL.fullmatch(word)) and command[0][:1].upper() == "M"
+            and not any(TOOL.fullmatch(w) for w in command[1:]))
+
+
+def _shell_word(text: str) -> str:
+    """``text`` as one shell word: in double quotes when only its spaces need them."""
+    if " " in text and re.fullmatch(r"[\w .+-]+", text):
+        return f'"{text}"'
+    return shlex.quote(text)
 
 
 def cmd_delete(args: argparse.Namespace) -> int:

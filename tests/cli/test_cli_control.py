@@ -332,6 +332,13 @@ async def test_send_exits_by_the_documented_table(tmp_path):
         assert rc == 2 and "above the hotend's limit" in err
         rc, out, _ = await hostctl(d.socket, "send", "M105")
         assert rc == 0 and "temperatures" in out
+        rc, out, err = await hostctl(d.socket, "send", "G90", "M104", "S200", "M105")
+        assert (rc, out) == (2, "")  # one argument, one line: S200 is no command
+        assert err == ("hostctl: script: line 3: 'S200' is not a G-code command (a G, M or T "
+                       "code and its number); quote a command with its parameters: hostctl "
+                       'send G90 "M104 S200" M105\n')
+        rc, _, err = await hostctl(d.socket, "send", "M105", "hello")
+        assert rc == 2 and "'HELLO' is not a G-code command" in err and "quote" not in err
 
 
 @pytest.mark.asyncio
