@@ -193,11 +193,21 @@ def _upload_size(path: Path) -> int:
     return st.st_size
 
 
+LINK_WAY_OUT = {"halted": ": hostctl firmware-restart brings it back",
+                "disconnected": ": the job starts once the link is back (hostd reconnects)"}
+"""What brings a link that is not ready back, by its state."""
+
+
 def _say_held(c: Client) -> None:
-    """One line when the job will not start yet because the queue is held."""
+    """A line for each reason the job will not start yet: the queue is held (a part on the
+    platform, the operator), the printer is not ready (the link halted or down)."""
     queue = c.call("queue.status")
     if queue.get("held"):
         print(f"queue held: {queue.get('reason')}", flush=True)
+    state = (c.call("printer.status").get("link") or {}).get("state", "?")
+    if state != "ready":
+        print(f"queue held: the printer is not ready (link {state})"
+              f"{LINK_WAY_OUT.get(state, '')}", flush=True)
 
 
 def _submit(c: Client, name: str, data: bytes,
