@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import logging
 import os
 import signal
@@ -92,6 +93,29 @@ def stream_settings(cfg: Config) -> StreamSettings:
         end_gcode=str(p["end_gcode"]), end_values=process_values(cfg))
 
 
+def _state_dir_problem(state_dir: Path, exc: OSError) -> str:
+    """One line for a state directory hostd cannot make or use: the file in the way of it
+    or of a directory in it (``/var/lib/hostd/spool is a file, not a directory``), else
+    the path and the system's words."""
+    path = Path(exc.filename or state_dir)
+    blocked = _not_a_directory(path) if exc.errno in (errno.EEXIST, errno.ENOTDIR) else None
+    if blocked is None:
+        return f"daemon.state_dir: cannot use {path}: {exc.strerror or exc}"
+    where = "" if blocked == state_dir else f"cannot use {state_dir}: "
+    what = "a file, not a directory" if blocked.is_file() else "not a directory"
+    return f"daemon.state_dir: {where}{blocked} is {what}"
+
+
+def _not_a_directory(path: Path) -> Path | None:
+    """``path`` or the nearest directory above it that exists but is no directory."""
+    for p in (path, *path.parents):
+        if p.is_dir():
+            return None
+        if p.exists():
+            return p
+    return None
+
+
 class Daemon:
     """All components of one running daemon."""
 
@@ -128,8 +152,7 @@ class Daemon:
         except (StoreError, StateLockError) as exc:
             raise DaemonError(str(exc)) from None
         except OSError as exc:
-            raise DaemonError(f"daemon.state_dir: cannot use {exc.filename or self.state_dir}:"
-                              f" {exc.strerror or exc}") from None
+            raise DaemonError(_state_dir_problem(self.state_dir, exc)) from None
         self._jobs = JobManager(self.store, spool, self.worker, lambda: LinkPort(self.link),
                                 self.bus, stream_settings(self.config),
                                 envelope_from_config(self.config.data), printer=self.link,

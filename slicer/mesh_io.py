@@ -201,21 +201,26 @@ def _check_finite(mesh: trimesh.Trimesh, text: bytes | None, name: str) -> None:
 
 def _is_ascii_stl(data: bytes) -> bool:
     """ASCII STL: text from ``solid`` on (a binary header may also begin with "solid", but
-    then NUL bytes or its 50-byte records follow, not ``facet`` or ``endsolid``)."""
+    then NUL bytes or its 50-byte records follow, not ``facet`` or ``endsolid``; and no
+    binary STL is printable text throughout: its triangle count, bytes 80-83, would be over
+    0x20202020)."""
     head = data.lstrip()[:2048]
     return head[:5].lower() == b"solid" and b"\0" not in head and (
-        b"facet" in head or b"endsolid" in data[-2048:].lower())
+        b"facet" in head or b"endsolid" in data[-2048:].lower() or _looks_like_text(data))
 
 
 def _ascii_body(data: bytes, name: str) -> bytes:
     """An ASCII STL as :func:`_ascii_text`; refused, naming its last line, when it was cut
     short (:func:`_cut_short`)."""
     data = _ascii_text(data)
-    if _cut_short(data.lower()):
+    lower = data.lower()
+    if _cut_short(lower):
         lines = data.rstrip().splitlines()
-        last = lines[-1].strip().decode("ascii")[:60]
-        raise MeshError(f"{name}: truncated ASCII STL: no endsolid after line {len(lines)}: "
-                        f"{last!r}")
+        last = f"line {len(lines)}: {lines[-1].strip().decode('ascii')[:60]!r}"
+        if b"facet" not in lower:
+            raise MeshError(f"{name}: ASCII STL with no facets and no endsolid (empty, or "
+                            f"cut short after {last})")
+        raise MeshError(f"{name}: truncated ASCII STL: no endsolid after {last}")
     return data
 
 

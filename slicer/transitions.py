@@ -38,8 +38,9 @@ class Transition:
     Attributes
     ----------
     poses : (4, 5) float
-        End poses [X, Y, Z, A, C] of lift, turn, travel and approach (X/Y of the lift may be
-        NaN when the start pose is unknown, i.e. at the beginning of the print).
+        End poses [X, Y, Z, A, C] of lift, turn, travel and approach (X/Y/A/C of the lift are
+        NaN when the start pose is unknown, i.e. at the beginning of the print: the lift moves
+        Z alone, and the turn states the angles).
     rotary : (4,) bool
         Which moves turn the table (their feed is degrees/s).
     safe_z : float
@@ -109,8 +110,10 @@ def plan_transition(start: np.ndarray | None, point: ArrayLike, a: float, c: flo
     Parameters
     ----------
     start : (5,) float or None
-        Current [X, Y, Z, A, C]; None at the start of the print (A = C = 0 assumed after
-        homing, X/Y left where they are).
+        Current [X, Y, Z, A, C]; None at the start of the print (X/Y/A/C left where the
+        start script put them: the safe height assumes A = C = 0, as homing leaves them, and
+        the lift moves Z alone, so a table left turned is not swung round while the nozzle
+        rises; the turn then goes to the new angles at the safe height).
     point : (3,) float
         First point of the next sub-part, platform frame.
     a, c : float
@@ -118,15 +121,15 @@ def plan_transition(start: np.ndarray | None, point: ArrayLike, a: float, c: flo
     hull, rim : (n, 3) float
         Part obstacle hull (:func:`obstacle_hull`) and platform rim (:func:`platform_rim`).
     """
-    if start is None:
-        start = np.array([np.nan, np.nan, -math.inf, 0.0, 0.0])
-    a0, c0 = float(start[3]), float(start[4])
+    if start is None:  # the lift turns nothing: its A/C words stay unwritten (NaN)
+        start = np.array([np.nan, np.nan, -math.inf, np.nan, np.nan])
+    a0, c0 = (0.0, 0.0) if np.isnan(start[3:]).any() else (float(start[3]), float(start[4]))
     above = forward(np.asarray(point, dtype=float).reshape(3), a, c, geometry)
     above = above + np.array([0.0, 0.0, z_hop])
     z = safe_height_z(hull, rim, a0, c0, a, c, geometry, safe_height)
     z = max(z, float(start[2]), float(above[2]))
     poses = np.array([
-        [start[0], start[1], z, a0, c0],
+        [start[0], start[1], z, start[3], start[4]],
         [start[0], start[1], z, a, c],
         [above[0], above[1], z, a, c],
         [above[0], above[1], above[2], a, c],

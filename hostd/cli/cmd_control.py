@@ -10,23 +10,25 @@ from __future__ import annotations
 import argparse
 import base64
 import json
+import re
+import shlex
 import stat
 import sys
-import unicodedata
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from hostd.cli.client import Client, socket_path
+from hostd.cli.client import Client, RpcFailure, socket_path
 from hostd.cli.errors import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_OK,
     EXIT_REFUSED,
+    EXIT_UNREACHABLE,
     EXIT_USAGE,
     CliError,
 )
-from hostd.control.rpc import CONTROL_CATEGORIES, control_character
+from hostd.cli.text import event_text, printable
 
 FINAL = {"completed", "failed", "cancelled", "interrupted"}
 PART_BYTES = 3 << 16
@@ -40,19 +42,19 @@ JOBS_SHOWN = 20
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = subparsers.add_parser("print", help="upload FILE (STL or G-code) and print it")
-    p.add_argument("file")
+    p.add_argument("file", help="the STL or G-code file to print")
     p.add_argument("--wait", action="store_true", help="show progress until the job ends")
     p.add_argument("--kind", choices=("stl", "gcode"),
                    help="what FILE is, when its extension does not say (.stl, .gcode)")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
+    _json_flag(p, "the job (with --wait: as job.get gives it, once the job ended)")
     p.set_defaults(func=cmd_print)
 
     p = subparsers.add_parser("status", help="printer and current job")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "printer.status's snapshot of every component")
     p.set_defaults(func=cmd_status)
 
     p = subparsers.add_parser("jobs", help="the job list (the newest jobs)")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "job.list's {jobs, total} (total: every job, also those not shown)")
     p.add_argument("--limit", type=_count, default=JOBS_SHOWN, metavar="N",
                    help=f"show the newest N jobs (default {JOBS_SHOWN}; 0: all)")
     p.set_defaults(func=cmd_jobs)
@@ -60,47 +62,59 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     for verb, helptext in (("pause", "pause the current job"),
                            ("cancel", "cancel a job (default: the current one)")):
         p = subparsers.add_parser(verb, help=helptext)
-        p.add_argument("id", nargs="?", type=int)
-        p.add_argument("--json", action="store_true")
+        p.add_argument("id", nargs="?", type=int,
+                       help="job id (default: the job on the printer)")
+        _json_flag(p, "the job")
         p.set_defaults(func=cmd_job_verb, method=f"job.{verb}")
 
     p = subparsers.add_parser("resume", help="resume a paused or interrupted job")
-    p.add_argument("id", nargs="?", type=int)
+    p.add_argument("id", nargs="?", type=int,
+                   help="job id (default: the job on the printer, else the last paused or "
+                        "interrupted one)")
     p.add_argument("--from", dest="scope", default=None,
                    choices=("layer", "subpart", "checkpoint"),
                    help="for an interrupted job: restart at the start of its layer (default), "
                         "of its sub-part, or at its last checkpoint (these two print again "
                         "the layers of the sub-part already done)")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "the job")
     p.set_defaults(func=cmd_resume)
 
     p = subparsers.add_parser("send", help="send raw G-code lines")
-    p.add_argument("gcode", nargs="+")
-    p.add_argument("--json", action="store_true")
+    p.add_argument("gcode", nargs="+", metavar="GCODE",
+                   help='one G-code line per argument: quote a command with its parameters '
+                        '(hostctl send "M104 S200" M105)')
+    _json_flag(p, "{commands, replies, errors}")
     p.set_defaults(func=cmd_send)
 
     p = subparsers.add_parser("delete", help="forget a finished job and its files")
-    p.add_argument("id", type=int)
-    p.add_argument("--json", action="store_true")
+    p.add_argument("id", type=int, help="job id (a finished job: not printing or paused)")
+    _json_flag(p, "{deleted: ID}")
     p.set_defaults(func=cmd_delete)
 
     p = subparsers.add_parser("estop", help="emergency stop (M112)")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "{stopped: true}")
     p.set_defaults(func=cmd_estop)
     p = subparsers.add_parser("firmware-restart",
                               help="reset the firmware and reconnect (after estop or a halt)")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "{link}")
     p.set_defaults(func=cmd_firmware_restart)
 
     p = subparsers.add_parser("queue", help="show the queue hold, or start/hold the queue "
                               "(start: the platform is clear, the next job may print)")
-    p.add_argument("action", nargs="?", choices=("start", "hold"))
-    p.add_argument("--json", action="store_true")
+    p.add_argument("action", nargs="?", choices=("start", "hold"),
+                   help="start: the platform is clear, lift the hold; hold: start no new "
+                        "job (default: show the hold)")
+    _json_flag(p, "{held, reason, ready, next_job}")
     p.set_defaults(func=cmd_queue)
 
     p = subparsers.add_parser("watch", help="print the daemon's event stream")
-    p.add_argument("--json", action="store_true")
+    _json_flag(p, "each event as the daemon sends it, one per line,")
     p.set_defaults(func=cmd_watch)
+
+
+def _json_flag(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--json", action="store_true",
+                   help=f"print {what} as JSON on stdout (an error stays one line on stderr)")
 
 
 def _client(args: argparse.Namespace, timeout: float | None = 30.0) -> Client:
@@ -139,11 +153,32 @@ def cmd_print(args: argparse.Namespace) -> int:
         try:  # from here on the job exists: Ctrl-C leaves it printing, and says so
             if not args.json:
                 _say_held(c)
-            final = _follow(c, job, args.json)
+            final, reason = _follow(c, job, args.json)
+            if args.json:
+                _emit_final(c, job["id"], final, reason)
         except KeyboardInterrupt:
             raise CliError(f"interrupted: job {job['id']} goes on (hostctl watch follows it; "
                            f"hostctl cancel {job['id']} stops it)", EXIT_INTERRUPTED) from None
     return EXIT_OK if final == "completed" else EXIT_FAILED
+
+
+def _emit_final(c: Client, job_id: int, state: str, reason: str) -> None:
+    """``print --wait --json`` once the job ended: the job as ``job.get`` gives it on stdout;
+    when it did not complete, :class:`CliError` (exit 1) with the text mode's last line."""
+    ended = f"job {job_id} {state}: {reason}" + (
+        f"; {_resume_hint(job_id)}" if state == "interrupted" else "")
+    try:
+        _emit_json(c.call("job.get", id=job_id))
+    except CliError as exc:  # hostd stopped (the job interrupted) before it answered
+        if state == "completed" or exc.code != EXIT_UNREACHABLE:
+            raise
+        raise CliError(f"{ended} ({exc})", EXIT_FAILED) from None
+    if state != "completed":
+        raise CliError(ended, EXIT_FAILED)
+
+
+def _resume_hint(job_id: int) -> str:
+    return f"resume it with: hostctl resume {job_id} [--from layer|subpart|checkpoint]"
 
 
 def _upload_size(path: Path) -> int:
@@ -158,11 +193,21 @@ def _upload_size(path: Path) -> int:
     return st.st_size
 
 
+LINK_WAY_OUT = {"halted": ": hostctl firmware-restart brings it back",
+                "disconnected": ": the job starts once the link is back (hostd reconnects)"}
+"""What brings a link that is not ready back, by its state."""
+
+
 def _say_held(c: Client) -> None:
-    """One line when the job will not start yet because the queue is held."""
+    """A line for each reason the job will not start yet: the queue is held (a part on the
+    platform, the operator), the printer is not ready (the link halted or down)."""
     queue = c.call("queue.status")
     if queue.get("held"):
         print(f"queue held: {queue.get('reason')}", flush=True)
+    state = (c.call("printer.status").get("link") or {}).get("state", "?")
+    if state != "ready":
+        print(f"queue held: the printer is not ready (link {state})"
+              f"{LINK_WAY_OUT.get(state, '')}", flush=True)
 
 
 def _submit(c: Client, name: str, data: bytes,
@@ -197,40 +242,45 @@ def _upload_progress(name: str) -> Callable[[int, int], None] | None:
     return show
 
 
-def _follow(c: Client, job: dict[str, Any], as_json: bool) -> str:
+def _follow(c: Client, job: dict[str, Any], quiet: bool) -> tuple[str, str]:
+    """Follow the job's events until it ends: its final state and reason. Progress and
+    state changes are shown on stdout unless ``quiet``."""
     job_id, state = job["id"], job["state"]
     bar = ProgressBar(sys.stdout, job_id, job["name"])
     bar.state = state
     if state in FINAL:
-        return str(state)
+        return str(state), str(job.get("reason") or "")
     for event, data in c.events():
         if event == "queue.state":  # the job waits for the platform (or may go now)
-            if data.get("held") and bar.state in ("queued", "slicing", "ready") and not as_json:
+            if data.get("held") and bar.state in ("queued", "slicing", "ready") and not quiet:
                 bar.line_break(f"queue held: {data.get('reason')}")
             continue
         if data.get("job_id") != job_id:
             continue
-        if as_json:
-            _emit_json({"event": event, **data})
         if event == "job.state":
             bar.state = data["new"]
             bar.reason = data.get("reason", "")
-            if not as_json:
-                bar.line_break(f"job {job_id} {data['new']}: {data.get('reason', '')}")
+            if not quiet:
+                bar.line_break(f"job {job_id} {data['new']}: {bar.reason}")
                 if data["new"] == "interrupted":
-                    bar.line_break(f"resume it with: hostctl resume {job_id} "
-                                   "[--from layer|subpart|checkpoint]")
+                    bar.line_break(_resume_hint(job_id))
             if data["new"] in FINAL:
-                return str(data["new"])
-        elif event == "job.progress" and not as_json:
-            bar.update(data)
-        elif event == "subpart_started" and not as_json:
-            bar.line_break(f"sub-part {data.get('subpart')} started at A {data.get('a')} "
-                           f"C {data.get('c')} (checkpoint)")
-        elif event == "transition_failed" and not as_json:
-            bar.line_break(f"transition to sub-part {data.get('subpart')} failed: "
-                           f"{data.get('reason')}")
-    return "interrupted"
+                return str(data["new"]), str(bar.reason or "")
+        elif not quiet:
+            _show_job_event(bar, event, data)
+    return "interrupted", ""
+
+
+def _show_job_event(bar: ProgressBar, event: str, data: dict[str, Any]) -> None:
+    """A job event other than a state change, on the progress bar's terminal."""
+    if event == "job.progress":
+        bar.update(data)
+    elif event == "subpart_started":
+        bar.line_break(f"sub-part {data.get('subpart')} started at A {data.get('a')} "
+                       f"C {data.get('c')} (checkpoint)")
+    elif event == "transition_failed":
+        bar.line_break(f"transition to sub-part {data.get('subpart')} failed: "
+                       f"{data.get('reason')}")
 
 
 class ProgressBar:
@@ -350,10 +400,10 @@ def _count(text: str) -> int:
 def cmd_jobs(args: argparse.Namespace) -> int:
     with _client(args) as c:
         listed = c.call("job.list", limit=args.limit)
-    jobs = listed["jobs"]
     if args.json:
-        _emit_json(jobs)
+        _emit_json(listed)  # {jobs, total}: how many were left out, too
         return EXIT_OK
+    jobs = listed["jobs"]
     if not jobs:
         print("no jobs")
     older = listed.get("total", len(jobs)) - len(jobs)
@@ -364,16 +414,6 @@ def cmd_jobs(args: argparse.Namespace) -> int:
               f"line {j['acked_lines']}/{j['total_lines']}  {printable(j['name'])}"
               + (f"  ({printable(j['reason'])})" if j.get("reason") else ""))
     return EXIT_OK
-
-
-def printable(text: Any) -> str:
-    """``text`` on one line: control characters escaped (``\\n``, ``\\x1b``), as a name
-    stored before the daemon refused them would otherwise break the listing."""
-    text = str(text)
-    if control_character(text) is None:
-        return text
-    return "".join(ch.encode("unicode_escape").decode("ascii")
-                   if unicodedata.category(ch) in CONTROL_CATEGORIES else ch for ch in text)
 
 
 def _show_job(job: dict[str, Any], as_json: bool) -> None:
@@ -398,9 +438,24 @@ def cmd_resume(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+PARAMETER = re.compile(r"[A-FH-LO-SU-Z]([-+]?(\d+\.?\d*|\.\d+))?", re.IGNORECASE)
+"""A word that is a command's parameter (``S200``, ``X``), not a command: any letter but
+G, M, T (a tool change) and N (a line number), and a number or none."""
+TOOL = re.compile(r"T\d+", re.IGNORECASE)
+"""A tool change, or the tool parameter of an M-code (``M104 T0 S200``)."""
+NOT_GCODE = "is not a G-code command"
+"""How the daemon refuses a line that does not start with a command."""
+
+
 def cmd_send(args: argparse.Namespace) -> int:
-    with _client(args, timeout=600.0) as c:
-        res = c.call("printer.gcode", timeout=600.0, script="\n".join(args.gcode))
+    try:
+        with _client(args, timeout=600.0) as c:
+            res = c.call("printer.gcode", timeout=600.0, script="\n".join(args.gcode))
+    except RpcFailure as exc:
+        hint = _quoting_hint(args.gcode) if NOT_GCODE in str(exc) else None
+        if hint is None:
+            raise
+        raise CliError(f"{exc}; {hint}", exc.code) from None
     if args.json:
         _emit_json(res)
     else:
@@ -413,6 +468,38 @@ def cmd_send(args: argparse.Namespace) -> int:
         raise CliError(f"the firmware refused {first['command']}: {first['reply']}{more}",
                        EXIT_REFUSED)
     return EXIT_OK
+
+
+def _quoting_hint(lines: list[str]) -> str | None:
+    """``quote a command with its parameters: hostctl send G90 "M104 S200"`` when an
+    argument of ``hostctl send`` looks like the parameter of the one before (each argument
+    is one line: the words are not joined, a ``T0`` could be either), else None."""
+    groups: list[list[str]] = []
+    for word in lines:
+        if groups and _parameter_of(groups[-1], word):
+            groups[-1].append(word)
+        else:
+            groups.append([word])
+    if len(groups) == len(lines):
+        return None
+    quoted = [_shell_word(" ".join(g)) for g in groups]
+    return f"quote a command with its parameters: hostctl send {' '.join(quoted)}"
+
+
+def _parameter_of(command: list[str], word: str) -> bool:
+    """Whether ``word`` reads as a parameter of the ``command`` words (for the hint only):
+    a T word is an M-code's tool (``M104 T0``) if it has none yet, else a tool change."""
+    if PARAMETER.fullmatch(word):
+        return True
+    return (bool(TOOL.fullmatch(word)) and command[0][:1].upper() == "M"
+            and not any(TOOL.fullmatch(w) for w in command[1:]))
+
+
+def _shell_word(text: str) -> str:
+    """``text`` as one shell word: in double quotes when only its spaces need them."""
+    if " " in text and re.fullmatch(r"[\w .+-]+", text):
+        return f'"{text}"'
+    return shlex.quote(text)
 
 
 def cmd_delete(args: argparse.Namespace) -> int:
@@ -467,6 +554,5 @@ def cmd_watch(args: argparse.Namespace) -> int:
             if args.json:
                 _emit_json({"event": event, **data})
             else:
-                rest = " ".join(f"{k}={v}" for k, v in data.items() if k != "event")
-                print(f"{event} {rest}", flush=True)
+                print(event_text(event, data), flush=True)
     return EXIT_OK

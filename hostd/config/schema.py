@@ -108,14 +108,24 @@ SCHEMA: dict[str, dict[str, Field]] = {
                                          lo=0.05, hi=1.0),
         "interface_flow": Number("Extrusion multiplier of a child's first layer.", 1.1,
                                  lo=0.5, hi=2.0),
-        "nozzle_temperature": Number("Hotend temperature, °C.", 210.0, lo=0, hi=450),
-        "bed_temperature": Number("Platform temperature, °C.", 60.0, lo=0, hi=150),
+        "nozzle_temperature": Number("Hotend temperature, °C; at most "
+                                     "machine.max_hotend_temp (a higher one is refused).",
+                                     210.0, lo=0, hi=450),
+        "bed_temperature": Number("Platform temperature, °C; at most machine.max_bed_temp "
+                                  "(a higher one is refused).", 60.0, lo=0, hi=150),
         "fan_speed": Number("Part fan PWM while printing (0..255).", 255, lo=0, hi=255,
                             integer=True),
-        "start_gcode": Text("G-code before the print; {placeholders} from this section.",
+        "start_gcode": Text("G-code before the print. Its {placeholders}: a key of this "
+                            "section (the scripts aside, e.g. {nozzle_temperature}), the "
+                            "machine keys nozzle_diameter, filament_diameter, max_velocity, "
+                            "max_accel, max_rotary_velocity, max_rotary_accel and "
+                            "linearize_tolerance ({nozzle_diameter}), and {safe_z}: "
+                            "safe_height above the empty platform at A = C = 0 (machine Z); "
+                            "{{ and }} for literal braces.",
                             DEFAULT_START_GCODE, multiline=True),
-        "end_gcode": Text("G-code after the print (and after a cancel); {safe_z} is the "
-                          "safe machine Z: no lower than the file's transitions lift.",
+        "end_gcode": Text("G-code after the print (and after a cancel), with the "
+                          "placeholders of start_gcode; {safe_z} here is the safe machine "
+                          "Z: no lower than the file's transitions lift.",
                           DEFAULT_END_GCODE, multiline=True),
     },
     "decompose": {

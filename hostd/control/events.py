@@ -24,7 +24,7 @@ EVENT_NAMES = (
     "transition_failed",  # {"job_id", "subpart", "reason", "expected", "measured"}
     "printer.temperatures",  # {"heaters": {...}}
     "printer.state",     # {"state": ..., "reason": ...}
-    "queue.state",       # {"held": bool, "reason": str}: the queue hold was set or lifted
+    "queue.state",       # {"held": bool, "reason": str | None}: the hold was set or lifted
 )
 
 

@@ -429,7 +429,7 @@ class JobManager:
         self.store.set_setting(HOLD_KEY, reason)
         self.hold_reason = reason
         log.info("queue %s", f"held: {reason}" if reason else "runs")
-        self.bus.publish("queue.state", {"held": reason is not None, "reason": reason or ""})
+        self.bus.publish("queue.state", {"held": reason is not None, "reason": reason})
 
     async def _printer_ready(self) -> bool:
         """Whether the printer takes lines now; if not, wait until it does and say no.

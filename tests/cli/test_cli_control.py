@@ -45,8 +45,8 @@ async def test_hostctl_verbs_and_exit_codes(tmp_path):
             assert rc == 0, err
             assert "job 1 completed" in out and "100.0%" in out
             rc, out, _ = await hostctl(d.socket, "jobs", "--json")
-            jobs = json.loads(out)
-            assert rc == 0 and jobs[0]["state"] == "completed"
+            listed = json.loads(out)
+            assert rc == 0 and listed["total"] == 1 and listed["jobs"][0]["state"] == "completed"
             rc, out, _ = await hostctl(d.socket, "status", "--json")
             assert rc == 0 and json.loads(out)["jobs"]["finished"]["completed"] == 1
             rc, out, _ = await hostctl(d.socket, "status")
@@ -73,14 +73,18 @@ async def test_hostctl_verbs_and_exit_codes(tmp_path):
             shown = [int(line.split()[0]) for line in out.splitlines()[1:]]
             assert rc == 0 and shown == [2, 3]  # the newest, oldest first
             assert out.splitlines()[0].startswith("(1 older jobs not shown")
+            rc, out, _ = await hostctl(d.socket, "jobs", "--limit", "2", "--json")
+            listed = json.loads(out)  # job.list's result: how many were left out too
+            assert rc == 0 and [j["id"] for j in listed["jobs"]] == [2, 3]
+            assert listed["total"] == 3
             rc, out, _ = await hostctl(d.socket, "jobs", "--limit", "0", "--json")
-            assert rc == 0 and [j["id"] for j in json.loads(out)] == [1, 2, 3]
+            assert rc == 0 and [j["id"] for j in json.loads(out)["jobs"]] == [1, 2, 3]
             rc, _, err = await hostctl(d.socket, "jobs", "--limit", "-1")
             assert rc == 2 and "whole number" in err
             rc, out, _ = await hostctl(d.socket, "delete", "1")
             assert rc == 0 and out.strip() == "job 1 deleted"
             rc, out, _ = await hostctl(d.socket, "jobs", "--limit", "0", "--json")
-            assert [j["id"] for j in json.loads(out)] == [2, 3]
+            assert [j["id"] for j in json.loads(out)["jobs"]] == [2, 3]
             rc, _, err = await hostctl(d.socket, "delete", "1")
             assert rc == 4 and "1" in err
         finally:
@@ -123,22 +127,29 @@ async def test_hostctl_sends_a_large_file_in_parts(tmp_path):
             await d.stop()
 
 
+async def print_wait_until_hostd_stops(d: DaemonProc, *options: str) -> tuple[int, str, str]:
+    """``hostctl print --wait`` of a long job, and hostd stopped (SIGTERM) mid-print."""
+    gcode = d.tmp / "long.gcode"
+    gcode.write_text(make_gcode(subparts=1, layers=20, per_layer=200))
+    await d.start()
+    watcher = await d.rpc()
+    await watcher.call("events.subscribe", events=["job.progress"])
+    printing = asyncio.create_task(hostctl(d.socket, "print", str(gcode), "--wait",
+                                           *options))
+    await watcher.until(lambda e: e["progress"] > 0.05)
+    await d.stop()
+    done = await printing
+    await watcher.close()
+    return done
+
+
 @pytest.mark.asyncio
 async def test_print_wait_tells_how_to_resume_when_hostd_stops_mid_print(tmp_path):
     """hostd stopped (SIGTERM) mid-print: ``hostctl print --wait`` shows the job interrupted,
     and how to resume it, not a bare lost connection."""
     d = DaemonProc(tmp_path, sim__throttle=True)
-    gcode = tmp_path / "long.gcode"
-    gcode.write_text(make_gcode(subparts=1, layers=20, per_layer=200))
     async with asyncio.timeout(90):
-        await d.start()
-        watcher = await d.rpc()
-        await watcher.call("events.subscribe", events=["job.progress"])
-        printing = asyncio.create_task(hostctl(d.socket, "print", str(gcode), "--wait"))
-        await watcher.until(lambda e: e["progress"] > 0.05)
-        await d.stop()
-        rc, out, err = await printing
-        await watcher.close()
+        rc, out, err = await print_wait_until_hostd_stops(d)
     assert rc == 1, err
     lines = out.splitlines()
     assert lines[-2].startswith("job 1 interrupted: daemon stopped (SIGTERM) at line ")
@@ -176,8 +187,8 @@ async def test_status_shows_the_link_trouble_of_a_noisy_line(tmp_path):
 @pytest.mark.asyncio
 async def test_status_after_an_estop_and_firmware_restart(tmp_path):
     """An estop mid-print: status names the failed job and its line; a job queued meanwhile
-    is held (said so, with the way out); firmware-restart brings the board back and the held
-    job prints."""
+    is held (print and status say so, with the way out); firmware-restart brings the board
+    back and the held job prints."""
     d = DaemonProc(tmp_path, sim__throttle=True)
     long = tmp_path / "long.gcode"
     long.write_text(make_gcode(subparts=1, layers=20, per_layer=200))
@@ -193,8 +204,11 @@ async def test_status_after_an_estop_and_firmware_restart(tmp_path):
             rc, out, _ = await hostctl(d.socket, "estop")
             assert rc == 0 and "emergency stop sent" in out
             await watcher.until_state(1, "failed")
-            rc, out, _ = await hostctl(d.socket, "print", str(short), "--json")
-            assert rc == 0 and json.loads(out)["state"] == "ready"
+            rc, out, _ = await hostctl(d.socket, "print", str(short))
+            assert rc == 0 and out.splitlines() == [  # why it does not start: the board
+                "job 2 ready: short.gcode",
+                "queue held: the printer is not ready (link halted): hostctl "
+                "firmware-restart brings it back"]
             await watcher.until(lambda e: e["event"] == "printer.state"
                                 and e["state"] == "waiting")
             rc, out, _ = await hostctl(d.socket, "status")
@@ -321,6 +335,13 @@ async def test_send_exits_by_the_documented_table(tmp_path):
         assert rc == 2 and "above the hotend's limit" in err
         rc, out, _ = await hostctl(d.socket, "send", "M105")
         assert rc == 0 and "temperatures" in out
+        rc, out, err = await hostctl(d.socket, "send", "G90", "M104", "S200", "M105")
+        assert (rc, out) == (2, "")  # one argument, one line: S200 is no command
+        assert err == ("hostctl: script: line 3: 'S200' is not a G-code command (a G, M or T "
+                       "code and its number); quote a command with its parameters: hostctl "
+                       'send G90 "M104 S200" M105\n')
+        rc, _, err = await hostctl(d.socket, "send", "M105", "hello")
+        assert rc == 2 and "'HELLO' is not a G-code command" in err and "quote" not in err
 
 
 @pytest.mark.asyncio
@@ -337,7 +358,7 @@ async def test_a_job_name_with_a_newline_is_refused_at_submit(tmp_path):
         rc, _, err = await hostctl(d.socket, "print", str(odd))
         assert rc == 2 and "control character" in err and err.count("\n") == 1
         rc, out, _ = await hostctl(d.socket, "jobs", "--json")
-        assert rc == 0 and json.loads(out) == []
+        assert rc == 0 and json.loads(out) == {"jobs": [], "total": 0}
 
 
 @pytest.mark.asyncio
@@ -360,7 +381,8 @@ async def test_print_of_a_corrupt_ascii_stl_exits_2_naming_its_line_and_the_prin
         assert (rc, out) == (2, "")
         assert err == "hostctl: bad.stl: not a readable STL file (line 5: 'vertex 1 0 x0')\n"
         rc, out, _ = await hostctl(d.socket, "jobs", "--json")
-        assert rc == 0 and [(j["id"], j["state"]) for j in json.loads(out)] == [(1, "printing")]
+        listed = json.loads(out)["jobs"]
+        assert rc == 0 and [(j["id"], j["state"]) for j in listed] == [(1, "printing")]
         await watcher.close()
 
 
@@ -388,3 +410,42 @@ async def test_ctrl_c_of_print_wait_says_the_job_goes_on_and_estop_takes_json(tm
         rc, out, _ = await hostctl(d.socket, "firmware-restart", "--json")
         assert rc == 0 and json.loads(out) == {"link": "ready"}
         await watcher.close()
+
+
+@pytest.mark.asyncio
+async def test_print_wait_json_prints_only_the_final_job_and_a_failure_on_stderr(tmp_path):
+    """``print --wait --json``: stdout holds one JSON document, the job as ``job.get`` gives
+    it once the job ended (no event stream); a job that failed exits 1 with one line on
+    stderr, in the words of the text mode's last line."""
+    import trimesh
+
+    part = tmp_path / "part.gcode"
+    part.write_text(make_gcode(subparts=1, layers=2, per_layer=20))
+    wide = tmp_path / "wide.stl"  # wider than the platform: its slice fails
+    trimesh.creation.box([400.0, 400.0, 10.0]).export(wide, file_type="stl")
+    async with asyncio.timeout(90), running(tmp_path, daemon__next_job="at_once") as d:
+        rc, out, err = await hostctl(d.socket, "print", str(part), "--wait", "--json")
+        assert (rc, err) == (0, "")
+        c = await d.rpc()
+        assert json.loads(out) == await c.call("job.get", id=1)  # one document: the job
+        assert json.loads(out)["state"] == "completed" and "history" in json.loads(out)
+        rc, out, err = await hostctl(d.socket, "print", str(wide), "--wait", "--json")
+        job = json.loads(out)
+        assert rc == 1 and job == await c.call("job.get", id=2) and job["state"] == "failed"
+        assert err == f"hostctl: job 2 failed: {job['reason']}\n"
+        assert "does not fit" in job["reason"]
+        await c.close()
+
+
+@pytest.mark.asyncio
+async def test_print_wait_json_says_how_to_resume_when_hostd_stops_mid_print(tmp_path):
+    """hostd stopped mid-print under ``print --wait --json``: exit 1, one line on stderr
+    naming the job interrupted and how to resume it; stdout holds the job or nothing (hostd
+    may close the connection before it answers ``job.get``), never events."""
+    d = DaemonProc(tmp_path, sim__throttle=True)
+    async with asyncio.timeout(90):
+        rc, out, err = await print_wait_until_hostd_stops(d, "--json")
+    assert rc == 1 and err.count("\n") == 1, err
+    assert err.startswith("hostctl: job 1 interrupted: daemon stopped (SIGTERM) at line ")
+    assert "resume it with: hostctl resume 1 [--from layer|subpart|checkpoint]" in err
+    assert out == "" or json.loads(out)["state"] == "interrupted"

@@ -76,3 +76,15 @@ def test_the_default_socket_is_defined_once() -> None:
     assert main.DEFAULT_SOCKET is client.DEFAULT_SOCKET
     sources = [p.read_text() for p in Path(hostd.cli.__file__).parent.glob("*.py")]
     assert sum(s.count('"/run/hostd/hostd.sock"') for s in sources) == 1
+
+
+def test_send_hints_how_to_quote_a_command_with_its_parameters() -> None:
+    from hostd.cli.cmd_control import _quoting_hint
+
+    assert _quoting_hint(["G28", "M105"]) is None  # every argument a command: no hint
+    assert _quoting_hint(["M104", "S200"]) == (
+        'quote a command with its parameters: hostctl send "M104 S200"')
+    assert _quoting_hint(["M104", "T0", "S200", "T1", "G28", "X", "Y"]) == (
+        'quote a command with its parameters: hostctl send "M104 T0 S200" T1 "G28 X Y"')
+    # a word with more than letters, digits, spaces and . + -: quoted as shlex quotes it
+    assert _quoting_hint(["M117 it's", "X1"]).endswith("""send 'M117 it'"'"'s X1'""")

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -196,3 +197,27 @@ def test_integer_ranges_are_written_in_full_in_the_docs() -> None:
     assert SCHEMA["serial"]["baud"].describe() == "integer in [1200, 4000000]"
     assert SCHEMA["sim"]["seed"].describe() == "integer in [0, 2147483647]"
     assert "e+" not in render_markdown()
+
+
+def test_the_scripts_name_every_placeholder_outside_the_process_section() -> None:
+    """process.start_gcode's meaning names the placeholders that are not process keys (the
+    machine keys, {safe_z}); end_gcode points at it and says what {safe_z} is there."""
+    from hostd.config.placeholders import known_names
+
+    start = SCHEMA["process"]["start_gcode"].doc
+    others = known_names() - set(SCHEMA["process"])
+    assert others and all(re.search(rf"\b{name}\b", start) for name in others)
+    assert "key of this section" in start and "machine keys" in start
+    end = SCHEMA["process"]["end_gcode"].doc
+    assert "start_gcode" in end and "{safe_z}" in end
+
+
+@pytest.mark.parametrize(("process", "machine"), [
+    ("nozzle_temperature", "machine.max_hotend_temp"), ("bed_temperature", "machine.max_bed_temp")])
+def test_a_temperature_names_the_machine_limit_it_may_not_pass(process: str,
+                                                               machine: str) -> None:
+    """The table's range is the schema's; a temperature above the machine's limit is refused
+    too, and its meaning says so."""
+    assert machine in SCHEMA["process"][process].doc
+    with pytest.raises(ConfigError, match=f"process.{process}: .* is above {machine}"):
+        loads(f"process:\n  {process}: {SCHEMA['process'][process].hi}\n")

@@ -15,23 +15,29 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.timeout(60)
-@pytest.mark.parametrize("blocked", ["spool", "cache"])
+@pytest.mark.parametrize(("state_dir", "blocked"), [
+    ("state", "state/spool"), ("state", "state/cache"),  # the directories hostd makes in it
+    ("state", "state"),  # the state directory itself
+    ("file/state", "file"),  # a directory above it
+])
 def test_a_file_where_a_state_directory_belongs_is_a_one_line_error(
-        tmp_path: Path, blocked: str):
-    state = tmp_path / "state"
-    state.mkdir()
-    (state / blocked).write_text("not a directory")
+        tmp_path: Path, state_dir: str, blocked: str):
+    (tmp_path / blocked).parent.mkdir(parents=True, exist_ok=True)
+    (tmp_path / blocked).write_text("not a directory")
     config = tmp_path / "hostd.yaml"
     config.write_text(yaml.safe_dump({
-        "daemon": {"socket": str(tmp_path / "hostd.sock"), "state_dir": str(state)},
+        "daemon": {"socket": str(tmp_path / "hostd.sock"),
+                   "state_dir": str(tmp_path / state_dir)},
         "metrics": {"enabled": False}, "serial": {"port": "sim://"}}))
     done = subprocess.run([sys.executable, "-m", "hostd.main", "--config", str(config)],
                           cwd=ROOT, capture_output=True, text=True, timeout=50, check=False)
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr
     errors = [line for line in done.stderr.splitlines() if "ERROR" in line]
-    assert len(errors) == 1 and "daemon.state_dir" in errors[0]
-    assert str(state / blocked) in errors[0]
+    assert len(errors) == 1
+    where = "" if blocked == state_dir else f"cannot use {tmp_path / state_dir}: "
+    assert errors[0].endswith(f"daemon.state_dir: {where}{tmp_path / blocked} is a file, "
+                              "not a directory")
     assert not (tmp_path / "hostd.sock").exists()
 
 

@@ -39,7 +39,9 @@ async def test_the_next_job_waits_until_the_platform_is_cleared(daemon_factory):
         status = await c.call("printer.status")
         assert status["jobs"]["queue"]["held"] is True and status["jobs"]["current"] is None
         started = await c.call("queue.start")
-        assert started["held"] is False
+        assert started["held"] is False and started["reason"] is None
+        lifted = await c.until(lambda e: e["event"] == "queue.state")
+        assert lifted["held"] is False and lifted["reason"] is None  # as queue.status says
         assert (await c.call("job.wait", id=jb["id"]))["state"] == "completed"
         ran = [cmd for cmd in executed((await c.call("sim.log"))["commands"])
                if cmd not in ("M400", "M114")]

@@ -273,6 +273,25 @@ def test_the_retract_comes_before_the_transition_marker_and_the_block_lifts_firs
     assert res.lines[second + 1].startswith(f"G0 Z{safe_z:.3f}")
 
 
+def test_no_transition_turns_the_table_while_the_nozzle_moves(two_part):
+    """docs/gcode-format.md: a block lifts (Z alone, at the old angles), turns (A C alone),
+    travels and descends; the first block too, though the angles the start script left are
+    not known: it states them (A0 C0, after homing) in a turn of its own, so a table the
+    script left turned is not swung round while the nozzle rises from the platform."""
+    _, res, _ = two_part
+    starts = [i for i, ln in enumerate(res.lines) if ln.startswith(";HOSTD_TRANSITION ")]
+    for first, at in enumerate(starts):
+        end = res.lines.index(";HOSTD_TRANSITION_END", at)
+        axes = [{w[0] for w in ln.split()[1:] if w[0] in "XYZAC"}
+                for ln in res.lines[at + 1:end]]
+        safe_z = json.loads(res.lines[at].split(" ", 1)[1])["safe_z"]
+        assert axes[0] == {"Z"} and res.lines[at + 1].startswith(f"G0 Z{safe_z:.3f} ")
+        assert not [a for a in axes if a & {"A", "C"} and a & {"X", "Y", "Z"}]
+        if first == 0:
+            assert axes[1] == {"A", "C"}
+            assert res.lines[at + 2].startswith("G0 A0.0000 C0.0000 ")
+
+
 def test_moves_that_round_to_a_standstill_are_dropped_and_their_filament_kept():
     """A path whose vertices lie closer than the printed precision (0.001 mm) would write
     bare ``G1 E..`` lines: those moves are dropped, their filament goes to the next move."""

@@ -125,6 +125,21 @@ def test_an_ascii_stl_with_no_facets_has_no_triangles(tmp_path):
     assert "no triangles" in _refused(_write(tmp_path, "e.stl", b"solid x\nendsolid x\n"))
 
 
+@pytest.mark.parametrize(("data", "told"), [
+    (b"solid x\n", "ASCII STL with no facets and no endsolid (empty, or cut short after "
+                   "line 1: 'solid x')"),
+    (b"solid x\n\n  \n", "ASCII STL with no facets and no endsolid (empty, or cut short after "
+                         "line 1: 'solid x')"),
+    (b"solid x\n" + b"   \n" * 2000 + b"facet normal 0 0 1\n",  # the first facet far down
+     "truncated ASCII STL: no endsolid after line 2002: 'facet normal 0 0 1'"),
+])
+def test_text_that_begins_with_solid_is_told_what_it_lacks(tmp_path, data, told):
+    """Text from ``solid`` on is an ASCII STL (no binary STL is printable text: its
+    triangle count would be over 500 million): refused for what it lacks, not as text that
+    does not begin with 'solid'."""
+    assert _refused(_write(tmp_path, "s.stl", data)).endswith(f"s.stl: {told}")
+
+
 @pytest.mark.parametrize(("nth", "bad"), [(0, "vertx 1 2 3"), (9, "vertex 1.0 abc 3.0"),
                                           (40, "vertex 1 2")])
 def test_a_syntax_error_names_its_line(tmp_path, nth, bad):
