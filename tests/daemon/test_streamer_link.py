@@ -122,7 +122,7 @@ async def test_pauses_at_random_moments_on_a_faulty_wire_run_every_line_once(see
                       seed=seed)
     link = SerialLink(LinkSettings(ok_timeout=2.0, starve_timeout=0.2), sim)
     prog = parse_program(make_gcode(subparts=3, layers=2, per_layer=60))
-    pauses = sorted(rng.sample(range(20, prog.total - 5), 3))
+    pauses = sorted(rng.sample(range(20, prog.total - 100), 3))  # each with acks after it
 
     def progress(st: Streamer) -> None:
         if pauses and st.acked >= pauses[0]:
@@ -146,7 +146,7 @@ async def test_pauses_at_random_moments_on_a_faulty_wire_run_every_line_once(see
             await asyncio.gather(*resumes)
         finally:
             await link.close()
-    assert len(resumes) >= 2  # pauses asked past the end of the file do not count
+    assert len(resumes) >= 2  # two asked during one transition make one pause after it
     job, other = _split_log([c for n, c in firmware.log if n], prog.commands)
     assert job == prog.commands
     assert Counter(other) - Counter(st.stats.extra_commands) <= Counter({"M105": 99, "M115": 1})
