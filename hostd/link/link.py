@@ -170,8 +170,8 @@ class SerialLink:
 
     def withdraw(self, first: int, last: int) -> int:
         """Take back the lines submitted as ``first`` .. ``last`` (one :meth:`submit_many`
-        batch, or several in a row) that have not gone out; returns how many, the last ones
-        of the range. A future of a line taken back now stands for the last line kept (it
+        batch: lines only, numbered in a row) that have not gone out; returns how many, the
+        last ones of the batch. A future of a line taken back now stands for the last line kept (it
         resolves with that line's number once acknowledged), or is cancelled when every
         line of the range was taken back."""
         taken = self.protocol.withdraw(first, last)
