@@ -51,9 +51,12 @@ from slicer.replay_samples import (
 )
 from slicer.replay_stages import Stages
 from slicer.replay_support import (
+    FOOTPRINT,
+    OUTLINE_DEPTH,
     WALL_SLACK,
     LayerSupport,
     bad_wall_layers,
+    bead_axes,
     bridged,
     layer_support,
     strict_support,
@@ -67,6 +70,7 @@ FAR_TIP_SPACING = 3.0  # mm between samples of the carriage (radius ≥ 15 mm by
 TIP_ANGLE = 1.0  # degrees between head samples while the table turns
 H_MIN, H_MAX = 0.25, 2.0  # bead heights read from E are clipped to these × layer height
 MEMORY_BUDGET = 1 << 30  # bytes the check may hold at its peak (memory_estimate)
+BRIDGE_CHUNK = 1 << 16  # bridging candidates whose footprints are tested at once
 BYTES_PER_SAMPLE = 160  # peak bytes per deposited sample, per head sample, per move
 BYTES_PER_TIP = 80
 BYTES_PER_MOVE = 64
@@ -237,8 +241,8 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
             model_f.result(), dep_f.result()[1].p[::JUDGE_STRIDE], wall_f.result()[0],
             INSIDE_SLACK * w), wall_f)
         bridge_f = st.submit("bridging", lambda: _bridging(
-            model_f.result(), dep_f.result()[1], ok_f.result(), wall_f.result()[1], t, w,
-            proc["infill_density"]), ok_f, wall_f)
+            model_f.result(), dep_f.result()[1], ok_f.result(), t, w,
+            proc["infill_density"]), ok_f, model_f)
         (n_beads, deposited), s = dep_f.result()
         ok, wall, bridge = ok_f.result(), wall_f.result()[1], bridge_f.result()
         (n_hit, reports), (cov, shell_cov) = hit_f.result(), cov_f.result()
@@ -379,17 +383,31 @@ def judged_samples(n: int) -> np.ndarray:
     return np.arange(0, n, JUDGE_STRIDE)
 
 
-def _bridging(model: ModelIndex, s: Samples, ok: np.ndarray, wall: np.ndarray,
-              layer_height: float, line_width: float, infill_density: float) -> np.ndarray:
-    """Which judged samples (``ok`` and ``wall`` are theirs) are unsupported, inside the
-    model away from its walls, and bridge sparse infill, (m,) bool.
+def _bridging(model: ModelIndex, s: Samples, ok: np.ndarray, layer_height: float,
+              line_width: float, infill_density: float) -> np.ndarray:
+    """Which judged samples (``ok`` is theirs) are unsupported over the previous layer's
+    outline and bridge sparse infill (:func:`~slicer.replay_support.bridged`), (m,) bool.
 
-    Those lie farther than the wall distance from the surface, where the column test alone
-    is exact (the inside pitch is finer than that).
+    Over the outline: the bead's footprint at the previous layer's mid-height beneath the
+    sample (``OUTLINE_DEPTH`` bead heights down its axis), its centre and the points
+    ``FOOTPRINT`` widths from it along and across the bead, lies inside the model, exactly
+    (no slack: under a ledge printed in thin layers that point lies a fraction of a layer
+    below the ledge's underside). The points are offset across the axis only, so the
+    part's top, however near, takes no part.
     """
     judged = judged_samples(len(s))
-    cand = ~ok & ~wall
-    cand[cand] = model.parity_inside(s.p[judged[cand]])
+    cand = ~ok
+    idx = judged[cand]
+    over = np.zeros(len(idx), dtype=bool)
+    r = FOOTPRINT * line_width
+    for lo in range(0, len(idx), BRIDGE_CHUNK):  # (5 · chunk, 3) footprints at a time
+        j = idx[lo:lo + BRIDGE_CHUNK]
+        below = s.p[j] - OUTLINE_DEPTH * s.h[j, None] * s.u[j]
+        along, across = bead_axes(s.u[j], s.step[j])
+        points = np.concatenate([below, below + r * along, below - r * along,
+                                 below + r * across, below - r * across])
+        over[lo:lo + len(j)] = model.inside(points).reshape(5, len(j)).all(axis=0)
+    cand[cand] = over
     mask = np.zeros(len(s), dtype=bool)
     mask[judged[cand]] = True
     return bridged(s, mask, layer_height, line_width, infill_density)[judged]

@@ -14,8 +14,10 @@ Samples stand for their piece of centreline (``Samples.step``), so the spacing o
 along a path adds no offset. The same rule is applied to every point; wall points (within
 0.75 w of the model surface) are also reported on their own.
 
-A point that fails the rule but lies inside the model away from its surface, with material of
-the previous layer within half the sparse infill spacing (w / density) plus one line width
+A point that fails the rule but lies over the previous layer's outline (its bead's footprint,
+``FOOTPRINT`` widths around it across its axis, inside the model ``OUTLINE_DEPTH`` bead
+heights beneath it: ``slicer.replay``), with material of the previous layer within
+:func:`bridge_reach` (half the sparse infill spacing w / density, plus one line width)
 beneath it, *bridges over sparse infill*: reported apart, and not counted as an overhang.
 """
 
@@ -41,6 +43,9 @@ OVERHANG_SHARE = 0.25  # a layer with more of its extrusion (by length) unsuppor
 OVERHANG_RUN = 15.0  # ... in a continuous unsupported run longer than this (mm) is refused
 RUN_GAP = 1.5  # × line width: judged samples farther apart lie on different beads
 NEIGHBOURS = 10
+OUTLINE_DEPTH = 1.5  # × bead height: the previous layer's mid-height beneath a bead's tip
+FOOTPRINT = 0.5  # × line width: the bead's footprint there must lie in the outline
+BRIDGE_SLACK = 1.0  # × line width: bridging reaches half the sparse spacing plus this
 CHUNK_PAIRS = 1 << 17  # (sample, candidate) pairs tested at once: 3 MiB per (pairs, 3) array
 
 
@@ -99,6 +104,23 @@ def _side_reach(u: np.ndarray, u_below: np.ndarray, step: np.ndarray,
     norm = np.linalg.norm(across, axis=1)
     share = np.abs(_dot(across, u)) / np.where(norm > 1e-12, norm, np.inf)
     return half_width * share
+
+
+def bead_axes(u: np.ndarray, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit vectors along and across beads in the plane across their axes, each (n, 3).
+
+    ``u`` (n, 3) are the unit nozzle axes and ``step`` (n, 3) the samples' pieces of path;
+    a piece without length across its axis takes any direction across it.
+    """
+    along = step - _dot(step, u)[:, None] * u
+    norm = np.linalg.norm(along, axis=1)
+    bare = norm <= 1e-9
+    if bare.any():  # x × u, or y × u where u is along x
+        ref = np.where(np.abs(u[bare, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+        along[bare] = np.cross(ref, u[bare])
+        norm[bare] = np.linalg.norm(along[bare], axis=1)
+    along /= norm[:, None]
+    return along, np.cross(u, along)
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -172,13 +194,32 @@ def _supported(s: Samples, top: np.ndarray, k: int, tree: cKDTree, r: float,
     return hit.any(axis=1)
 
 
+def bridge_reach(line_width: float, infill_density: float) -> float:
+    """How far from the previous layer's beads a point still bridges sparse infill, mm.
+
+    The sparse lines lie ``S = w / density`` apart and each layer's lines cross those of
+    the layer beneath at 90°, so a line of the first skin (or of the sparse infill itself)
+    spans S between two of them: every point of it lies within S / 2 of one.
+    ``BRIDGE_SLACK`` widths more cover the gap beside the inner perimeter (the outermost
+    sparse line may lie a spacing from the fill domain's edge, which is 0.85 w inside the
+    perimeter's centreline). Without sparse infill (density 0) the first skin spans the
+    hollow interior from wall to wall: unbounded.
+    """
+    if infill_density <= 0:
+        return math.inf
+    return 0.5 * line_width / infill_density + BRIDGE_SLACK * line_width
+
+
 def bridged(s: Samples, candidates: np.ndarray, layer_height: float, line_width: float,
             infill_density: float) -> np.ndarray:
-    """Of the ``candidates`` (bool mask), those bridging over sparse infill, (n,) bool."""
+    """Of the ``candidates`` (bool mask (n,): unsupported samples over the previous layer's
+    outline), those with a bead of the previous layer in print order beneath them
+    (``0 < depth ≤ DEPTH_FACTOR · max(t, h)`` along their axis) within :func:`bridge_reach`
+    across it, (n,) bool."""
     out = np.zeros(len(s), dtype=bool)
-    if infill_density <= 0 or not candidates.any():
+    if not candidates.any():
         return out
-    reach = 0.5 * line_width / infill_density + line_width
+    reach = bridge_reach(line_width, infill_density)
     order = np.argsort(s.seq, kind="stable")
     seq_sorted = s.seq[order]
     cand = np.flatnonzero(candidates)

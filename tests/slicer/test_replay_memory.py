@@ -35,7 +35,8 @@ GEO = MachineGeometry()
 UP = np.array([0.0, 0.0, 1.0])
 TINY = {(replay_samples, "CHUNK_SAMPLES"): 97, (replay_support, "CHUNK_PAIRS"): 50,
         (replay_columns, "CHUNK_CROSSINGS"): 101, (replay_geometry, "CHUNK_POINTS"): 103,
-        (replay_geometry, "EXACT_CHUNK"): 7, (replay_collide, "CHUNK"): 89}
+        (replay_geometry, "EXACT_CHUNK"): 7, (replay_collide, "CHUNK"): 89,
+        (replay, "BRIDGE_CHUNK"): 13}
 
 
 def _tilted_child():
