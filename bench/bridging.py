@@ -27,11 +27,10 @@ from harness import MODELS
 
 from kinematics.machine import MachineGeometry
 from slicer.gcode_reader import parse_lines
-from slicer.mesh_io import place_on_platform, repair
+from slicer.mesh import place_on_platform, repair, to_trimesh
 from slicer.pipeline import slice_model
 from slicer.printhead import Printhead
 from slicer.replay import replay_check
-from slicer.samples import to_trimesh
 from slicer.settings import ProcessSettings
 
 

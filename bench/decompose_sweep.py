@@ -23,8 +23,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "slicer")
 from decompose_checks import check_decomposition, is_clean_failure
 
 from kinematics.machine import MachineGeometry
-from slicer import samples
 from slicer.decompose import DecomposeSettings, DecompositionError, decompose
+from slicer.mesh import samples
 from slicer.printhead import Printhead
 
 

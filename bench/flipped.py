@@ -8,7 +8,7 @@ pointing down), loaded as ``hostctl`` loads it, and decomposed by
 the loader stands it, as before the base choice). Printed per case: the face it stands on (mm²,
 and whether it was turned), sub-parts, overhang, wall and process CPU seconds of the fastest
 of N runs, and a refusal's first words. Last, the cost of the base search alone
-(:func:`slicer.mesh_io.flat_bases`) on a part that stands well, on the 50k-face pipe3.
+(:func:`slicer.mesh.read.flat_bases`) on a part that stands well, on the 50k-face pipe3.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from harness import best_of, pipe3_50k
 from kinematics.machine import MachineGeometry
 from slicer.bases import decompose_on_bases
 from slicer.decompose import DecomposeSettings, Decomposition, DecompositionError, decompose
-from slicer.mesh_io import flat_bases, load_mesh, standing_base
+from slicer.mesh import flat_bases, load_mesh, standing_base
 from slicer.printhead import Printhead
 
 MODELS = Path(__file__).resolve().parents[2] / "shared" / "models"

@@ -14,7 +14,7 @@ from typing import TypeVar
 
 import trimesh
 
-from slicer import samples
+from slicer.mesh import samples
 
 T = TypeVar("T")
 

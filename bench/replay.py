@@ -22,7 +22,7 @@ from harness import MODELS, check_models
 from kinematics.machine import MachineGeometry
 from slicer.gcode_reader import ParsedGcode, parse_lines
 from slicer.hugepages import small_pages
-from slicer.mesh_io import place_on_platform, repair
+from slicer.mesh import place_on_platform, repair
 from slicer.pipeline import slice_model
 from slicer.printhead import Printhead
 from slicer.replay import ReplayReport, replay_check

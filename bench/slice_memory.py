@@ -34,13 +34,13 @@ def _box(x: float, y: float, z: float) -> Callable[[], trimesh.Trimesh]:
 
 
 def _pipe2_x2() -> trimesh.Trimesh:
-    from slicer import samples
+    from slicer.mesh import samples
 
     return samples.pipe2().apply_scale(2.0)
 
 
 def _pipe2() -> trimesh.Trimesh:
-    from slicer import samples
+    from slicer.mesh import samples
 
     return samples.pipe2()
 

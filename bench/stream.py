@@ -111,8 +111,8 @@ def sliced_job(n: int) -> list[str]:
     """The first ``n`` commands of a real five-axis slice of the sample two-branched pipe."""
     from hostd.config import convert, defaults
     from hostd.link import strip_gcode
+    from slicer.mesh import pipe2
     from slicer.pipeline import slice_model
-    from slicer.samples import pipe2
 
     result = slice_model(pipe2(), check=False, **convert.slice_inputs(defaults()))
     cmds = [c for c in map(strip_gcode, result.lines) if c]

@@ -18,7 +18,7 @@ from collections.abc import Callable
 import trimesh
 
 from kinematics.machine import MachineGeometry
-from slicer import samples
+from slicer.mesh import samples
 from slicer.pipeline import slice_model
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings

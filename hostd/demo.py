@@ -25,7 +25,7 @@ READY = "ready (socket"
 
 def sample_file(tmp: Path) -> Path:
     """The bundled three-branched pipe as an STL file; the daemon's worker slices it."""
-    from slicer.samples import pipe3
+    from slicer.mesh import pipe3
 
     path = tmp / "pipe3.stl"
     pipe3().export(path)

@@ -1,6 +1,6 @@
 """The decomposition pipeline: STL mesh → support-free sub-parts with a build order.
 
-``decompose`` = repair/placement (:mod:`slicer.mesh_io`) → k-means coarse partition
+``decompose`` = repair/placement (:mod:`slicer.mesh.read`) → k-means coarse partition
 (:mod:`slicer.partition`) → groups and BFS build order (:mod:`slicer.buildorder`) → one
 separating plane per parent→child edge found by the directed local search
 (:mod:`slicer.planes`) → manifold3d split (:mod:`slicer.split`) → an independent check of
@@ -26,13 +26,15 @@ from scipy.spatial import cKDTree
 from kinematics.machine import MachineGeometry
 from kinematics.orient import nearest_reachable_direction
 from slicer.buildorder import MERGE_ANGLE, Groups, group_regions_refined, root_region
-from slicer.mesh_io import (
+from slicer.mesh import (
     BaseChoice,
     canonical_mesh,
     check_size,
     place_on_platform,
     repair,
     separate_bodies,
+    to_manifold,
+    to_trimesh,
 )
 from slicer.overhang import Overhang, decomposition_overhang
 from slicer.partition import K_MIN, Partition, analysis_mesh, auto_k, coarse_partition
@@ -51,7 +53,6 @@ from slicer.planes import (
 )
 from slicer.planes2d import TOL
 from slicer.printhead import Printhead
-from slicer.samples import to_manifold, to_trimesh
 from slicer.split import search_proxy, split_piece, split_solid
 
 UP = np.array([0.0, 0.0, 1.0])
@@ -229,7 +230,7 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     mesh : trimesh.Trimesh
         The part. When ``placement`` is None it is repaired and placed on its flat base;
         otherwise it is taken as already placed by ``placement``. Either way it is put in
-        canonical order on the snap grid (:func:`~slicer.mesh_io.canonical_mesh`), so the
+        canonical order on the snap grid (:func:`~slicer.mesh.read.canonical_mesh`), so the
         result depends on the shape, not on the face order or a translation's residue.
     settings : DecomposeSettings
     machine : MachineGeometry
@@ -240,7 +241,7 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
 
     Raises
     ------
-    DecompositionError, slicer.mesh_io.MeshError
+    DecompositionError, slicer.mesh.read.MeshError
     """
     clock = _Clock()
     if placement is None:

@@ -11,7 +11,7 @@ Checks that neither the planner nor the replay makes, run by :mod:`slicer.pipeli
 
 Moves are straight lines in joint space, so a move whose end points lie inside the (box
 shaped) travel stays inside it. The functions here are pure numpy; :func:`refuse` wraps a
-finding in :class:`EnvelopeError`, a :class:`~slicer.mesh_io.MeshError` (a part that cannot be
+finding in :class:`EnvelopeError`, a :class:`~slicer.mesh.read.MeshError` (a part that cannot be
 printed, one line naming the file) so that callers report it as bad input.
 """
 
@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from slicer.mesh_io import MeshError
+from slicer.mesh import MeshError
 
 AXES = "XYZ"
 DEFAULT_TRAVEL = ((0.0, 500.0), (0.0, 500.0), (0.0, 700.0))

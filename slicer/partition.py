@@ -24,6 +24,8 @@ from scipy.cluster.vq import kmeans2, vq
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from slicer.mesh import canonical_mesh
+
 TARGET_FACES = 8_000  # faces of the analysis mesh
 TRAIN_SAMPLES = 6_000  # k-means training centroids (area-weighted draw)
 MIN_REGION_SHARE = 0.01  # regions below this share of the area are merged away
@@ -79,8 +81,6 @@ def analysis_mesh(mesh: trimesh.Trimesh, target_faces: int = TARGET_FACES) -> tr
         return mesh
     verts, faces = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge,
                                                     max_iter=12)
-    from slicer.mesh_io import canonical_mesh  # mesh_io imports this module's users
-
     # processing merges the split edges' vertices in an order that hangs on their last
     # bits: canonical order again, so the partition depends on the shape only
     return canonical_mesh(trimesh.Trimesh(verts, faces, process=True))

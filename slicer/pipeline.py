@@ -5,7 +5,7 @@ picklable result. A file whose replay finds a head collision is refused
 (:class:`CollisionError`), never returned, and so is one with a layer printed in the air
 (:class:`OverhangError`); so is a part wider than the platform, a program
 that prints nothing or moves an axis beyond its travel (:class:`~slicer.envelope.EnvelopeError`,
-a :class:`~slicer.mesh_io.MeshError`: bad input), checked by :mod:`slicer.envelope`.
+a :class:`~slicer.mesh.read.MeshError`: bad input), checked by :mod:`slicer.envelope`.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from slicer.settings import ProcessSettings
 
 if TYPE_CHECKING:
     from slicer.decompose import DecomposeSettings
-    from slicer.mesh_io import BaseChoice, Placement
+    from slicer.mesh import BaseChoice, Placement
 
 T = TypeVar("T")
 
@@ -82,7 +82,7 @@ class SliceResult:
         file held one).
     base_note : str or None
         Why the part stands on another flat face than its own bottom, or a much larger face
-        it could stand on (:class:`~slicer.mesh_io.BaseChoice`); None when there is nothing
+        it could stand on (:class:`~slicer.mesh.read.BaseChoice`); None when there is nothing
         to say.
     """
 
@@ -110,7 +110,7 @@ class SliceResult:
 def _load(mesh_or_path: trimesh.Trimesh | str | Path, min_size: float,
           build_volume: np.ndarray | None) -> tuple[trimesh.Trimesh, Placement]:
     """(placed mesh, placement)."""
-    from slicer.mesh_io import load_mesh, place_on_platform, repair
+    from slicer.mesh import load_mesh, place_on_platform, repair
 
     if isinstance(mesh_or_path, str | Path):
         return load_mesh(mesh_or_path, build_volume, min_size)
@@ -125,7 +125,7 @@ def plan_model(mesh: trimesh.Trimesh, placement: np.ndarray, settings: ProcessSe
 
     The decomposition may stand the part on a much larger flat face when it is refused as
     placed (:func:`slicer.bases.decompose_on_bases`); the plan's ``base.turn`` then moves
-    ``mesh`` to where the plan stands it (:func:`slicer.mesh_io.moved`).
+    ``mesh`` to where the plan stands it (:func:`slicer.mesh.read.moved`).
     """
     from slicer.planner import plan_planar, plan_print
 
@@ -214,7 +214,7 @@ def _turned(mesh: trimesh.Trimesh, base: BaseChoice, name: str,
             platform_radius: float) -> trimesh.Trimesh:
     """``mesh`` stood on the face ``base`` names (the very mesh the decomposition used),
     refused when it no longer fits the platform."""
-    from slicer.mesh_io import moved
+    from slicer.mesh import moved
 
     assert base.turn is not None
     turned = moved(mesh, base.turn)

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from slicer.mesh_io import BaseChoice
+    from slicer.mesh import BaseChoice
 
 PATH_KINDS = ("perimeter", "infill", "solid", "interface")
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from slicer.mesh import to_trimesh
 from slicer.planes import (
     Check,
     PieceContext,
@@ -35,7 +36,6 @@ from slicer.planes import (
     verify_base,
 )
 from slicer.printhead import Printhead
-from slicer.samples import to_trimesh
 from slicer.split import split_solid
 
 OVERHANG_DEG = 47.0  # faces steeper than this from the build direction count (45° + slack)

@@ -43,8 +43,8 @@ from scipy.sparse.csgraph import connected_components
 from shapely.geometry.base import BaseGeometry
 
 from kinematics.orient import nearest_reachable_direction, needed_pose, reachable_mask
+from slicer.mesh import to_manifold
 from slicer.printhead import Printhead
-from slicer.samples import to_manifold
 
 EPS = 1e-6  # mm: "on the plane"
 GRID = 1e-6  # mm: section vertices are snapped to this grid so loops close

@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from kinematics.machine import MachineGeometry
     from slicer.bases import decompose_on_bases
     from slicer.decompose import DecompositionError, RootRegionError, write_decomposition
-    from slicer.mesh_io import MeshError, load_mesh, merged_note
+    from slicer.mesh import MeshError, load_mesh, merged_note
     from slicer.printhead import Printhead, PrintheadError
 
     try:

@@ -61,7 +61,7 @@ def _slice(args: argparse.Namespace, inputs: dict[str, Any]) -> Any:
     from slicer.decompose import DecompositionError
     from slicer.gcode import GcodeError
     from slicer.layers import SlicingError
-    from slicer.mesh_io import MeshError
+    from slicer.mesh import MeshError
     from slicer.pipeline import CollisionError, SliceError, slice_model
 
     try:
@@ -112,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _summary(r: Any, out: Path, seconds: float) -> None:
-    from slicer.mesh_io import merged_note
+    from slicer.mesh import merged_note
 
     est, rep = r.estimate, r.replay
     lo, hi = r.thickness

@@ -49,11 +49,11 @@ def parse_upload(data: bytes, name: str) -> Program:
 
 
 def check_stl(data: bytes, name: str) -> None:
-    """An STL upload read as its slice will read it (:func:`slicer.mesh_io.parse_stl`): what
+    """An STL upload read as its slice will read it (:func:`slicer.mesh.read.parse_stl`): what
     would stop the slice there (a corrupt, truncated or non-finite file) is refused now, in the
     slicer's one line, naming the first bad line of an ASCII STL. Repair and placement are
     left to the slice. Imported here, in the worker: the daemon itself never loads trimesh."""
-    from slicer.mesh_io import MeshError, parse_stl
+    from slicer.mesh import MeshError, parse_stl
 
     try:
         parse_stl(data, name)

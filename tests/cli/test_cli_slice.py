@@ -8,7 +8,7 @@ import re
 import pytest
 
 from hostd.cli.main import main
-from slicer.samples import cylinder
+from slicer.mesh.samples import cylinder
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import trimesh
 
 from hostd.cli.errors import EXIT_USAGE
 from hostd.cli.main import main
-from slicer.samples import cylinder, to_trimesh
+from slicer.mesh.samples import cylinder, to_trimesh
 
 
 def _thin_wall_box() -> trimesh.Trimesh:

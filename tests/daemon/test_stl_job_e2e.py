@@ -10,7 +10,7 @@ import pytest
 from hostd_harness import executed, file_commands
 
 from hostd.printer.program import parse_program
-from slicer.samples import branched_pipe, cylinder, pipe3
+from slicer.mesh.samples import branched_pipe, cylinder, pipe3
 
 pytestmark = pytest.mark.asyncio
 

@@ -146,7 +146,7 @@ def test_the_upload_check_and_the_slicer_both_take_overlapping_shells(tmp_path: 
     the slicer sees them, and the slicer takes them (as their union)."""
     import trimesh
 
-    from slicer.mesh_io import load_mesh
+    from slicer.mesh.read import load_mesh
 
     cube = trimesh.creation.box([20.0, 20.0, 20.0])
     post = trimesh.creation.box([10.0, 10.0, 30.0])
@@ -165,7 +165,7 @@ def test_the_upload_check_and_the_slicer_agree_on_a_binary_stl_of_another_length
     shorter than its count says is refused by both."""
     import trimesh
 
-    from slicer.mesh_io import MeshError, load_mesh
+    from slicer.mesh.read import MeshError, load_mesh
 
     path = tmp_path / "box.stl"
     trimesh.creation.box([20.0, 20.0, 20.0]).export(path, file_type="stl")
@@ -189,7 +189,7 @@ def test_the_upload_check_and_the_slicer_agree_on_a_binary_stl_of_another_length
 def test_the_upload_check_refuses_a_corrupt_ascii_stl_as_the_slicer_does(tmp_path: Path,
                                                                           data: bytes):
     """The upload check is the slicer's reader: the same one line, naming the upload."""
-    from slicer.mesh_io import MeshError, load_mesh
+    from slicer.mesh.read import MeshError, load_mesh
 
     path = written(tmp_path, "part.stl", data)
     with pytest.raises(SpoolError) as upload:
@@ -205,7 +205,7 @@ def test_an_ascii_stl_named_in_latin_1_is_taken_by_the_upload_check_as_by_the_sl
     """Bytes outside ASCII in the solid's name stop neither (the slicer reads them as ``?``)."""
     import trimesh
 
-    from slicer.mesh_io import load_mesh
+    from slicer.mesh.read import load_mesh
 
     text = trimesh.creation.box([20.0, 20.0, 20.0]).export(file_type="stl_ascii")
     path = written(tmp_path, "box.stl", ("solid café\n" + text.split("\n", 1)[1])

@@ -20,10 +20,10 @@ from decompose_checks import check_decomposition
 from shared_models import MODELS
 
 from kinematics.machine import MachineGeometry
-from slicer import samples
 from slicer.bases import decompose_on_bases, direction_text
 from slicer.decompose import DecomposeSettings, DecompositionError, decompose
-from slicer.mesh_io import _faces_on_plane, flat_bases, load_mesh, moved
+from slicer.mesh import samples
+from slicer.mesh.read import _faces_on_plane, flat_bases, load_mesh, moved
 from slicer.planes2d import TOL
 from slicer.printhead import Printhead
 
@@ -237,7 +237,7 @@ def _outcome(area: float, normal, overhang: float | None):
     """A face tried, with a decomposition overhanging ``overhang`` mm² (None: refused)."""
     from slicer.bases import _Outcome
     from slicer.decompose import Decomposition
-    from slicer.mesh_io import FlatBase
+    from slicer.mesh.read import FlatBase
     from slicer.overhang import Overhang
 
     result = None if overhang is None else Decomposition(
@@ -268,7 +268,7 @@ def test_another_face_wins_only_when_it_overhangs_clearly_less(own, others, kept
 
 def test_a_part_kept_as_placed_after_trying_says_what_was_tried():
     from slicer.bases import _stayed_note
-    from slicer.mesh_io import FlatBase
+    from slicer.mesh.read import FlatBase
 
     first = _outcome(50.0, [0, 0, -1], 40.0)
     other = _outcome(800.0, [0, 0, 1], None)

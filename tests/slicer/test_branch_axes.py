@@ -22,7 +22,7 @@ from shared_models import MODELS
 from kinematics.machine import MachineGeometry
 from slicer.buildorder import region_axes
 from slicer.decompose import DecomposeSettings, decompose, nearest_reachable
-from slicer.mesh_io import load_mesh
+from slicer.mesh.read import load_mesh
 from slicer.partition import Partition
 from slicer.printhead import Printhead
 

@@ -12,8 +12,8 @@ from scipy.spatial import cKDTree
 
 from hostd.cli.main import main as hostctl
 from kinematics.machine import MachineGeometry
-from slicer import samples
 from slicer.decompose import DecomposeSettings, DecompositionError, decompose
+from slicer.mesh import samples
 from slicer.printhead import Printhead
 
 HEAD = Printhead.default()

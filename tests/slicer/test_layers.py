@@ -14,8 +14,8 @@ from slicer.layers import (
     march_layers,
     turn_toward,
 )
+from slicer.mesh.samples import to_trimesh
 from slicer.planes2d import TOL, from_plane, map_between, plane_frame, section, to_plane
-from slicer.samples import to_trimesh
 from slicer.skeleton import fit_curve, line_curve
 
 MS = MarchSettings(0.2, 0.5, 1.5)

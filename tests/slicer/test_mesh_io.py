@@ -5,8 +5,8 @@ import pytest
 import trimesh
 from shared_models import MODELS
 
-from slicer import samples
-from slicer.mesh_io import MeshError, load_mesh
+from slicer.mesh import samples
+from slicer.mesh.read import MeshError, load_mesh
 from slicer.planes2d import TOL
 
 

@@ -17,10 +17,10 @@ import pytest
 import trimesh
 
 from kinematics.machine import MachineGeometry
-from slicer import samples
 from slicer.buildorder import root_region
 from slicer.decompose import DecomposeSettings, DecompositionError, decompose
-from slicer.mesh_io import place_on_platform, repair
+from slicer.mesh import samples
+from slicer.mesh.read import place_on_platform, repair
 from slicer.overhang import decomposition_overhang, subpart_overhang
 from slicer.partition import coarse_partition
 from slicer.planes import Plane
@@ -192,7 +192,7 @@ KNOWN = {("pipe2", 0): [9397.13, 677.0], ("pipe2", 3): [9882.14, 191.99],
 def test_shared_models_pass_on_the_first_attempt_unchanged(name, seed):
     from shared_models import MODELS
 
-    from slicer.mesh_io import load_mesh
+    from slicer.mesh.read import load_mesh
 
     mesh, placement = load_mesh(MODELS / f"{name}.stl")
     dec = decompose(mesh, DecomposeSettings(seed=seed), MACHINE, HEAD, None, placement.matrix)

@@ -12,9 +12,9 @@ from decompose_checks import check_decomposition
 import slicer.plane_refine as refine
 from kinematics.machine import MachineGeometry
 from slicer.decompose import DecomposeSettings, decompose
+from slicer.mesh.samples import branched_pipe, pipe2, to_manifold, to_trimesh
 from slicer.planes import PieceContext, Plane, SearchSettings, evaluate
 from slicer.printhead import Printhead
-from slicer.samples import branched_pipe, pipe2, to_manifold, to_trimesh
 from slicer.split import split_solid
 
 GEO = MachineGeometry()

@@ -20,9 +20,9 @@ from kinematics.machine import MachineGeometry
 from kinematics.transform import machine_direction
 from slicer.layer_workers import _staged_in_processes as REAL_STAGED
 from slicer.layers import LayerPlane
+from slicer.mesh.samples import to_trimesh
 from slicer.planner import SlicingError, plan_planar, plan_print
 from slicer.printhead import Printhead
-from slicer.samples import to_trimesh
 from slicer.settings import ProcessSettings
 
 S = ProcessSettings()
@@ -201,7 +201,7 @@ def test_collision_limits_the_turn(leaning, leaning_plan) -> None:
 @pytest.fixture(scope="module")
 def pipe2_plan():
     decompose = pytest.importorskip("slicer.decompose")
-    from slicer.samples import pipe2
+    from slicer.mesh.samples import pipe2
 
     dec = decompose.decompose(pipe2(), decompose.DecomposeSettings(), G, Printhead.default())
     return dec, plan_print(dec, S, G, Printhead.default())

@@ -12,13 +12,13 @@ from kinematics.machine import MachineGeometry
 from slicer import replay, replay_collide
 from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import GcodeFormatError, parse_lines
+from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.plan import PrintPlan, SubpartPlan
 from slicer.replay import model_index, replay_check
 from slicer.replay_coverage import shell_depth, shell_grid
 from slicer.replay_geometry import ModelIndex
 from slicer.replay_samples import geometry_from_header, move_lengths
 from slicer.replay_support import strict_support
-from slicer.samples import to_manifold, to_trimesh
 from slicer.settings import ProcessSettings
 
 GEO = MachineGeometry()

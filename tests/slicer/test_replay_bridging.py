@@ -26,6 +26,7 @@ from kinematics.orient import solve_orientation
 from slicer import replay
 from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import parse_lines
+from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.pipeline import slice_model
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
 from slicer.printhead import Printhead
@@ -38,7 +39,6 @@ from slicer.replay_support import (
     bridge_reach,
     strict_support,
 )
-from slicer.samples import to_manifold, to_trimesh
 from slicer.settings import ProcessSettings
 
 GEO = MachineGeometry()

@@ -19,6 +19,7 @@ from slicer import (
 from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import parse_lines
 from slicer.layers import SlicingError
+from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.replay import ReplayBudgetError, memory_estimate, model_index, replay_check
 from slicer.replay_samples import (
     extruding_moves,
@@ -28,7 +29,6 @@ from slicer.replay_samples import (
     move_lengths,
     sample_moves,
 )
-from slicer.samples import to_manifold, to_trimesh
 from slicer.settings import ProcessSettings
 
 GEO = MachineGeometry()

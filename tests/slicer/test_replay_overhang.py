@@ -17,11 +17,11 @@ from hostd.cli.main import main
 from kinematics.machine import MachineGeometry
 from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import parse_lines
+from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.pipeline import OverhangError, overhang_message, slice_model
 from slicer.printhead import Printhead
 from slicer.replay import replay_check
 from slicer.replay_support import OVERHANG_RUN, OVERHANG_SHARE
-from slicer.samples import to_manifold, to_trimesh
 from slicer.settings import ProcessSettings
 
 GEO = MachineGeometry()

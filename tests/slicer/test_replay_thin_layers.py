@@ -9,11 +9,11 @@ import pytest
 
 from kinematics.machine import MachineGeometry
 from slicer.gcode_reader import parse_lines
+from slicer.mesh.samples import to_trimesh
 from slicer.pipeline import OverhangError, slice_model
 from slicer.printhead import Printhead
 from slicer.replay import replay_check
 from slicer.replay_support import THIN_LAYER
-from slicer.samples import to_trimesh
 from slicer.settings import ProcessSettings
 
 GEO = MachineGeometry()

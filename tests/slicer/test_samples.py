@@ -3,7 +3,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slicer import samples
+from slicer.mesh import samples
 
 
 @pytest.mark.parametrize("make", [samples.cylinder, samples.pipe2, samples.pipe3,

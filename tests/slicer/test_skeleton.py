@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from slicer.samples import to_trimesh
+from slicer.mesh.samples import to_trimesh
 from slicer.skeleton import fit_curve, line_curve, main_chain, skeleton_curve
 
 

@@ -28,8 +28,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.planes2d import TOL
-from slicer.samples import to_manifold, to_trimesh
 
 #: A direction no structured mesh is aligned with: the first key of the canonical order.
 GENERIC = np.array([0.5377, 0.7185, 0.4411]) / np.linalg.norm([0.5377, 0.7185, 0.4411])
