@@ -8,7 +8,7 @@ pointing down), loaded as ``hostctl`` loads it, and decomposed by
 the loader stands it, as before the base choice). Printed per case: the face it stands on (mm²,
 and whether it was turned), sub-parts, overhang, wall and process CPU seconds of the fastest
 of N runs, and a refusal's first words. Last, the cost of the base search alone
-(:func:`slicer.mesh.read.flat_bases`) on a part that stands well, on the 50k-face pipe3.
+(:func:`slicer.mesh.placement.flat_bases`) on a part that stands well, on the 50k-face pipe3.
 """
 
 from __future__ import annotations

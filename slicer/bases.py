@@ -1,6 +1,6 @@
 """Which flat face the part stands on: its own base, or a much larger one when that fails.
 
-The loader stands a part on its own bottom (:func:`slicer.mesh.read.find_base`). A part
+The loader stands a part on its own bottom (:func:`slicer.mesh.placement.find_base`). A part
 exported upside down then stands on a small face (a branch end, the top rim of its tube)
 and the decomposition refuses it, or leaves it overhanging. :func:`decompose_on_bases`
 decomposes the part as placed first; only when that is refused, or its best result
@@ -8,7 +8,7 @@ overhangs more than the retry threshold, does it try the flat faces at least
 ``TOL.base_ratio`` times larger than the one it stands on (largest first, at most
 ``TOL.base_tries``), each with the full seed plan of :func:`~slicer.decompose.decompose`. A
 part standing well keeps its placement and costs one convex hull more. The choice, and every
-face tried, is in :class:`~slicer.mesh.read.BaseChoice` (``Decomposition.base``); the placement
+face tried, is in :class:`~slicer.mesh.placement.BaseChoice` (``Decomposition.base``); the placement
 matrix of the G-code header and ``decomposition.json`` is the one it stands on.
 """
 
@@ -78,7 +78,7 @@ def decompose_on_bases(mesh: trimesh.Trimesh, settings: DecomposeSettings,
     Parameters
     ----------
     mesh : trimesh.Trimesh
-        The part as placed by :func:`~slicer.mesh.read.place_on_platform` (base on z = 0).
+        The part as placed by :func:`~slicer.mesh.placement.place_on_platform` (base on z = 0).
     settings, machine, head, build_volume
         As for :func:`~slicer.decompose.decompose`. A fixed ``settings.root`` names a region
         of this placement's partition, so it pins the placement (no other face is tried).
@@ -89,14 +89,14 @@ def decompose_on_bases(mesh: trimesh.Trimesh, settings: DecomposeSettings,
     -------
     Decomposition
         With ``base`` set; ``placement`` is file frame → the frame it stands in, and
-        ``base.turn`` moves ``mesh`` there (:func:`~slicer.mesh.read.moved`).
+        ``base.turn`` moves ``mesh`` there (:func:`~slicer.mesh.placement.moved`).
 
     Raises
     ------
     DecompositionError
         Refused on every face tried: the refusal as placed, then the other faces' (one line);
         or refused as placed with a fixed root while a much larger face exists (named).
-    slicer.mesh.read.MeshError
+    slicer.mesh.errors.MeshError
     """
     t0 = time.perf_counter()
     rotation = np.asarray(placement, dtype=float)[:3, :3]

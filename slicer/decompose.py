@@ -1,6 +1,6 @@
 """The decomposition pipeline: STL mesh → support-free sub-parts with a build order.
 
-``decompose`` = repair/placement (:mod:`slicer.mesh.read`) → k-means coarse partition
+``decompose`` = repair/placement (:mod:`slicer.mesh`) → k-means coarse partition
 (:mod:`slicer.partition`) → groups and BFS build order (:mod:`slicer.buildorder`) → one
 separating plane per parent→child edge found by the directed local search
 (:mod:`slicer.planes`) → manifold3d split (:mod:`slicer.split`) → an independent check of
@@ -230,7 +230,7 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     mesh : trimesh.Trimesh
         The part. When ``placement`` is None it is repaired and placed on its flat base;
         otherwise it is taken as already placed by ``placement``. Either way it is put in
-        canonical order on the snap grid (:func:`~slicer.mesh.read.canonical_mesh`), so the
+        canonical order on the snap grid (:func:`~slicer.mesh.placement.canonical_mesh`), so the
         result depends on the shape, not on the face order or a translation's residue.
     settings : DecomposeSettings
     machine : MachineGeometry
@@ -241,7 +241,7 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
 
     Raises
     ------
-    DecompositionError, slicer.mesh.read.MeshError
+    DecompositionError, slicer.mesh.errors.MeshError
     """
     clock = _Clock()
     if placement is None:

@@ -11,7 +11,7 @@ Checks that neither the planner nor the replay makes, run by :mod:`slicer.pipeli
 
 Moves are straight lines in joint space, so a move whose end points lie inside the (box
 shaped) travel stays inside it. The functions here are pure numpy; :func:`refuse` wraps a
-finding in :class:`EnvelopeError`, a :class:`~slicer.mesh.read.MeshError` (a part that cannot be
+finding in :class:`EnvelopeError`, a :class:`~slicer.mesh.errors.MeshError` (a part that cannot be
 printed, one line naming the file) so that callers report it as bad input.
 """
 

@@ -5,7 +5,7 @@ picklable result. A file whose replay finds a head collision is refused
 (:class:`CollisionError`), never returned, and so is one with a layer printed in the air
 (:class:`OverhangError`); so is a part wider than the platform, a program
 that prints nothing or moves an axis beyond its travel (:class:`~slicer.envelope.EnvelopeError`,
-a :class:`~slicer.mesh.read.MeshError`: bad input), checked by :mod:`slicer.envelope`.
+a :class:`~slicer.mesh.errors.MeshError`: bad input), checked by :mod:`slicer.envelope`.
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ class SliceResult:
         file held one).
     base_note : str or None
         Why the part stands on another flat face than its own bottom, or a much larger face
-        it could stand on (:class:`~slicer.mesh.read.BaseChoice`); None when there is nothing
+        it could stand on (:class:`~slicer.mesh.placement.BaseChoice`); None when there is nothing
         to say.
     """
 
@@ -125,7 +125,7 @@ def plan_model(mesh: trimesh.Trimesh, placement: np.ndarray, settings: ProcessSe
 
     The decomposition may stand the part on a much larger flat face when it is refused as
     placed (:func:`slicer.bases.decompose_on_bases`); the plan's ``base.turn`` then moves
-    ``mesh`` to where the plan stands it (:func:`slicer.mesh.read.moved`).
+    ``mesh`` to where the plan stands it (:func:`slicer.mesh.placement.moved`).
     """
     from slicer.planner import plan_planar, plan_print
 

@@ -56,7 +56,7 @@ class Tolerances:
     #                          tried when the part as placed is refused or overhangs (over the
     #                          retry threshold), named in a warning otherwise (slicer.bases)
     base_tries: int = 2  # at most this many such faces are tried, largest first
-    # placement (slicer.mesh.read.canonical_mesh)
+    # placement (slicer.mesh.placement.canonical_mesh)
     snap_grid: float = 1e-6  # mm: placed vertices are rounded to this grid, so the residue
     #                          of a translation the placement undoes is gone (not a power of
     #                          two: float32 STL coordinates would sit exactly on its half-steps)

@@ -1,34 +1,35 @@
 """The part as a mesh: reading STL files, their checks, sample parts and the placement.
 
-* :mod:`~slicer.mesh.read`: :func:`load_mesh` reads an ASCII or binary STL, repairs it,
-  refuses what cannot be printed (:class:`MeshError`, one line naming the file) and places it
-  on the platform; the checks (watertight, one body, size, parts in inches), the flat bases
-  a part can stand on and the canonical order of a placed mesh.
+* :mod:`~slicer.mesh.read`: :func:`load_mesh` (a file read, repaired, checked and placed),
+  :func:`read_stl` and :func:`parse_stl` (the triangles of an ASCII or binary STL).
+* :mod:`~slicer.mesh.checks`: :func:`repair`, overlapping shells merged
+  (:func:`merge_shells`), separate bodies and cavities refused, sizes checked, parts
+  exported in inches told apart.
+* :mod:`~slicer.mesh.placement`: the flat bases a part can stand on, its placement on the
+  platform (:class:`Placement`, :class:`BaseChoice`) and the canonical order of a placed mesh.
 * :mod:`~slicer.mesh.samples`: parametric sample parts (cylinder, branched pipes) and the
   trimesh ↔ manifold3d conversions.
+* :mod:`~slicer.mesh.errors`: :class:`MeshError`, a part that cannot be printed (one line
+  naming the file).
 
 The other stages import what they need from here, not from the modules.
 """
 
 from __future__ import annotations
 
-from slicer.mesh.read import (
+from slicer.mesh.checks import check_size, merged_note, repair, separate_bodies
+from slicer.mesh.errors import MeshError
+from slicer.mesh.placement import (
     BaseChoice,
     FlatBase,
-    MeshError,
     Placement,
     canonical_mesh,
-    check_size,
     flat_bases,
-    load_mesh,
-    merged_note,
     moved,
-    parse_stl,
     place_on_platform,
-    repair,
-    separate_bodies,
     standing_base,
 )
+from slicer.mesh.read import load_mesh, parse_stl
 from slicer.mesh.samples import pipe2, pipe3, to_manifold, to_trimesh
 
 __all__ = [

@@ -165,7 +165,8 @@ def test_the_upload_check_and_the_slicer_agree_on_a_binary_stl_of_another_length
     shorter than its count says is refused by both."""
     import trimesh
 
-    from slicer.mesh.read import MeshError, load_mesh
+    from slicer.mesh.errors import MeshError
+    from slicer.mesh.read import load_mesh
 
     path = tmp_path / "box.stl"
     trimesh.creation.box([20.0, 20.0, 20.0]).export(path, file_type="stl")
@@ -189,7 +190,8 @@ def test_the_upload_check_and_the_slicer_agree_on_a_binary_stl_of_another_length
 def test_the_upload_check_refuses_a_corrupt_ascii_stl_as_the_slicer_does(tmp_path: Path,
                                                                           data: bytes):
     """The upload check is the slicer's reader: the same one line, naming the upload."""
-    from slicer.mesh.read import MeshError, load_mesh
+    from slicer.mesh.errors import MeshError
+    from slicer.mesh.read import load_mesh
 
     path = written(tmp_path, "part.stl", data)
     with pytest.raises(SpoolError) as upload:

@@ -1,4 +1,4 @@
-"""A part given upside down: which flat face it stands on (``slicer.bases``, ``mesh_io``).
+"""A part given upside down: which flat face it stands on (``slicer.bases``, ``slicer.mesh``).
 
 The reference pipes of ``/work/shared/models`` are turned as a user might have exported them:
 180° about X (the base disc on top, the tube's top rim down), 135° about Y (pipe2's branch end
@@ -23,7 +23,8 @@ from kinematics.machine import MachineGeometry
 from slicer.bases import decompose_on_bases, direction_text
 from slicer.decompose import DecomposeSettings, DecompositionError, decompose
 from slicer.mesh import samples
-from slicer.mesh.read import _faces_on_plane, flat_bases, load_mesh, moved
+from slicer.mesh.placement import _faces_on_plane, flat_bases, moved
+from slicer.mesh.read import load_mesh
 from slicer.planes2d import TOL
 from slicer.printhead import Printhead
 
@@ -237,7 +238,7 @@ def _outcome(area: float, normal, overhang: float | None):
     """A face tried, with a decomposition overhanging ``overhang`` mm² (None: refused)."""
     from slicer.bases import _Outcome
     from slicer.decompose import Decomposition
-    from slicer.mesh.read import FlatBase
+    from slicer.mesh.placement import FlatBase
     from slicer.overhang import Overhang
 
     result = None if overhang is None else Decomposition(
@@ -268,7 +269,7 @@ def test_another_face_wins_only_when_it_overhangs_clearly_less(own, others, kept
 
 def test_a_part_kept_as_placed_after_trying_says_what_was_tried():
     from slicer.bases import _stayed_note
-    from slicer.mesh.read import FlatBase
+    from slicer.mesh.placement import FlatBase
 
     first = _outcome(50.0, [0, 0, -1], 40.0)
     other = _outcome(800.0, [0, 0, 1], None)

@@ -15,7 +15,9 @@ from shared_models import MODELS
 
 from kinematics.machine import MachineGeometry
 from slicer.decompose import DecomposeSettings, Decomposition, decompose
-from slicer.mesh.read import canonical_mesh, place_on_platform, read_stl, repair
+from slicer.mesh.checks import repair
+from slicer.mesh.placement import canonical_mesh, place_on_platform
+from slicer.mesh.read import read_stl
 from slicer.pipeline import slice_model
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings

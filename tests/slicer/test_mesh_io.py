@@ -6,7 +6,8 @@ import trimesh
 from shared_models import MODELS
 
 from slicer.mesh import samples
-from slicer.mesh.read import MeshError, load_mesh
+from slicer.mesh.errors import MeshError
+from slicer.mesh.read import load_mesh
 from slicer.planes2d import TOL
 
 

@@ -20,7 +20,8 @@ from kinematics.machine import MachineGeometry
 from slicer.buildorder import root_region
 from slicer.decompose import DecomposeSettings, DecompositionError, decompose
 from slicer.mesh import samples
-from slicer.mesh.read import place_on_platform, repair
+from slicer.mesh.checks import repair
+from slicer.mesh.placement import place_on_platform
 from slicer.overhang import decomposition_overhang, subpart_overhang
 from slicer.partition import coarse_partition
 from slicer.planes import Plane

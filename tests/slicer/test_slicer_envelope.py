@@ -22,7 +22,8 @@ from slicer.envelope import (
     travel_violation,
 )
 from slicer.gcode import MachineSetup, draft, generate
-from slicer.mesh.read import MeshError, load_mesh
+from slicer.mesh.errors import MeshError
+from slicer.mesh.read import load_mesh
 from slicer.mesh.samples import cylinder, to_trimesh
 from slicer.pipeline import check_envelope, plan_model, slice_model
 from slicer.printhead import Printhead
