@@ -15,8 +15,7 @@ import trimesh
 from harness import MODELS, best_of, check_models
 
 from kinematics.machine import MachineGeometry
-from slicer.decompose import DecomposeSettings, Decomposition, decompose
-from slicer.planes import SearchSettings
+from slicer.decompose import DecomposeSettings, Decomposition, SearchSettings, decompose
 from slicer.printhead import Printhead
 
 STAGES = ("load", "partition", "build_order", "planes_split", "verify")

@@ -4,7 +4,7 @@ Run: ``.venv/bin/python bench/flipped.py [--repeat N] [--as-placed]``. Every mod
 ``../shared/models`` is written to STL turned as a user might have exported it (180° and 90°
 about X; pipe2 135° about Y, its branch end straight down; pipe3 with its 150° branch
 pointing down), loaded as ``hostctl`` loads it, and decomposed by
-:func:`slicer.bases.decompose_on_bases` (``--as-placed``: by ``decompose`` alone, the part as
+:func:`slicer.decompose.decompose_on_bases` (``--as-placed``: by ``decompose`` alone, the part as
 the loader stands it, as before the base choice). Printed per case: the face it stands on (mm²,
 and whether it was turned), sub-parts, overhang, wall and process CPU seconds of the fastest
 of N runs, and a refusal's first words. Last, the cost of the base search alone
@@ -22,8 +22,13 @@ import trimesh
 from harness import best_of, pipe3_50k
 
 from kinematics.machine import MachineGeometry
-from slicer.bases import decompose_on_bases
-from slicer.decompose import DecomposeSettings, Decomposition, DecompositionError, decompose
+from slicer.decompose import (
+    DecomposeSettings,
+    Decomposition,
+    DecompositionError,
+    decompose,
+    decompose_on_bases,
+)
 from slicer.mesh import flat_bases, load_mesh, standing_base
 from slicer.printhead import Printhead
 

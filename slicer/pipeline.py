@@ -124,15 +124,14 @@ def plan_model(mesh: trimesh.Trimesh, placement: np.ndarray, settings: ProcessSe
     """Decompose and plan a placed mesh (or plan it planar, A = C = 0).
 
     The decomposition may stand the part on a much larger flat face when it is refused as
-    placed (:func:`slicer.bases.decompose_on_bases`); the plan's ``base.turn`` then moves
+    placed (:func:`slicer.decompose.bases.decompose_on_bases`); the plan's ``base.turn`` then moves
     ``mesh`` to where the plan stands it (:func:`slicer.mesh.placement.moved`).
     """
     from slicer.planner import plan_planar, plan_print
 
     if planar:
         return plan_planar(mesh, settings, geometry, placement)
-    from slicer.bases import decompose_on_bases
-    from slicer.decompose import DecomposeSettings
+    from slicer.decompose import DecomposeSettings, decompose_on_bases
 
     dec_settings = decompose_settings or DecomposeSettings(
         nozzle_diameter=settings.nozzle_diameter)
@@ -161,7 +160,7 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         The part in STL coordinates (it is repaired and placed on its flat base).
     settings, geometry, head
         Process, machine geometry and collision model.
-    decompose_settings : slicer.decompose.DecomposeSettings, optional
+    decompose_settings : slicer.decompose.decomposition.DecomposeSettings, optional
     platform_radius : float
     planar : bool
         The 3-axis control: one sub-part, horizontal layers, A = C = 0.

@@ -40,7 +40,7 @@ class Tolerances:
     straight_thick: float = 0.15  # ... or below this fraction of the part's smallest extent
     snap_deg: float = 5.0  # a straight axis this close to the base normal is the base normal
     turn_margin: float = 0.9  # fraction of the thickness slack a turn may use
-    # decomposition (slicer.overhang, slicer.decompose)
+    # decomposition (slicer.decompose.overhang, slicer.decompose.decomposition)
     overhang_deg: float = 45.0  # a face overhangs when its normal points further below
     #                             the plane square to the build direction (FDM's 45° rule)
     cut_tol: float = 1e-3  # mm: a face this close to a cut plane (or z = 0) lies on it
@@ -54,7 +54,8 @@ class Tolerances:
     min_base_share: float = 1e-3  # ... or with a base below this share of (volume)^(2/3)
     base_ratio: float = 4.0  # a flat face this many times the base stood on is much larger:
     #                          tried when the part as placed is refused or overhangs (over the
-    #                          retry threshold), named in a warning otherwise (slicer.bases)
+    #                          retry threshold), named in a warning otherwise
+    #                          (slicer.decompose.bases)
     base_tries: int = 2  # at most this many such faces are tried, largest first
     # placement (slicer.mesh.placement.canonical_mesh)
     snap_grid: float = 1e-6  # mm: placed vertices are rounded to this grid, so the residue

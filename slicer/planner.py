@@ -255,7 +255,7 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
 
     Parameters
     ----------
-    decomposition : slicer.decompose.Decomposition
+    decomposition : slicer.decompose.decomposition.Decomposition
         Sub-parts (``index``, ``parent``, ``mesh``, ``base_plane`` with ``point``/``normal``)
         and their build ``order``.
     settings : ProcessSettings

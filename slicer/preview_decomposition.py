@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-from slicer.planes import Plane, plane_basis
+from slicer.decompose import Plane, plane_basis
 
 if TYPE_CHECKING:
     from matplotlib.typing import ColorType

@@ -35,8 +35,7 @@ def register(subparsers: Any) -> None:
 
 
 def _settings(cfg: Config, args: argparse.Namespace) -> Any:
-    from slicer.decompose import DecomposeSettings
-    from slicer.planes import SearchSettings
+    from slicer.decompose import DecomposeSettings, SearchSettings
 
     search = SearchSettings(offset_max=cfg["decompose.plane_offset_max"],
                             angle_max=cfg["decompose.plane_angle_max"],
@@ -62,8 +61,12 @@ def _bounded(key: str, value: int) -> int:
 def run(args: argparse.Namespace) -> int:
     """Run the decomposition and print a short table."""
     from kinematics.machine import MachineGeometry
-    from slicer.bases import decompose_on_bases
-    from slicer.decompose import DecompositionError, RootRegionError, write_decomposition
+    from slicer.decompose import (
+        DecompositionError,
+        RootRegionError,
+        decompose_on_bases,
+        write_decomposition,
+    )
     from slicer.mesh import MeshError, load_mesh, merged_note
     from slicer.printhead import Printhead, PrintheadError
 

@@ -55,8 +55,7 @@ def travel(cfg: Config) -> tuple[tuple[float, float], ...]:
 
 def decompose_settings(cfg: Config, **override: Any) -> Any:
     """DecomposeSettings of ``decompose.*`` (``override`` wins)."""
-    from slicer.decompose import DecomposeSettings
-    from slicer.planes import SearchSettings
+    from slicer.decompose import DecomposeSettings, SearchSettings
 
     search = SearchSettings(offset_max=cfg["decompose.plane_offset_max"],
                             angle_max=cfg["decompose.plane_angle_max"],

@@ -52,7 +52,7 @@ class Placement:
 
 @dataclass(frozen=True)
 class BaseChoice:
-    """Which flat face a decomposed part stands on, and why (:mod:`slicer.bases`).
+    """Which flat face a decomposed part stands on, and why (:mod:`slicer.decompose.bases`).
 
     Attributes
     ----------

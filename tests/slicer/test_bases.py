@@ -1,4 +1,5 @@
-"""A part given upside down: which flat face it stands on (``slicer.bases``, ``slicer.mesh``).
+"""A part given upside down: which flat face it stands on (``slicer.decompose.bases``,
+``slicer.mesh``).
 
 The reference pipes of ``/work/shared/models`` are turned as a user might have exported them:
 180° about X (the base disc on top, the tube's top rim down), 135° about Y (pipe2's branch end
@@ -20,8 +21,8 @@ from decompose_checks import check_decomposition
 from shared_models import MODELS
 
 from kinematics.machine import MachineGeometry
-from slicer.bases import decompose_on_bases, direction_text
-from slicer.decompose import DecomposeSettings, DecompositionError, decompose
+from slicer.decompose.bases import decompose_on_bases, direction_text
+from slicer.decompose.decomposition import DecomposeSettings, DecompositionError, decompose
 from slicer.mesh import samples
 from slicer.mesh.placement import _faces_on_plane, flat_bases, moved
 from slicer.mesh.read import load_mesh
@@ -236,10 +237,10 @@ def test_the_choice_depends_on_the_shape_not_the_face_order(tmp_path):
 
 def _outcome(area: float, normal, overhang: float | None):
     """A face tried, with a decomposition overhanging ``overhang`` mm² (None: refused)."""
-    from slicer.bases import _Outcome
-    from slicer.decompose import Decomposition
+    from slicer.decompose.bases import _Outcome
+    from slicer.decompose.decomposition import Decomposition
+    from slicer.decompose.overhang import Overhang
     from slicer.mesh.placement import FlatBase
-    from slicer.overhang import Overhang
 
     result = None if overhang is None else Decomposition(
         np.eye(4), [], [], 1.0, {}, 1, 1, overhang=[Overhang(0, overhang, None)])
@@ -259,7 +260,7 @@ def _outcome(area: float, normal, overhang: float | None):
     (40.0, [None, None], 0),
 ])
 def test_another_face_wins_only_when_it_overhangs_clearly_less(own, others, kept):
-    from slicer.bases import _best
+    from slicer.decompose.bases import _best
 
     surface = trimesh.creation.box([5.0, 5.0, 5.0])  # 150 mm²: retry threshold max(5, 1.5)
     tried = [_outcome(50.0, [0, 0, -1], own)] + [
@@ -268,7 +269,7 @@ def test_another_face_wins_only_when_it_overhangs_clearly_less(own, others, kept
 
 
 def test_a_part_kept_as_placed_after_trying_says_what_was_tried():
-    from slicer.bases import _stayed_note
+    from slicer.decompose.bases import _stayed_note
     from slicer.mesh.placement import FlatBase
 
     first = _outcome(50.0, [0, 0, -1], 40.0)

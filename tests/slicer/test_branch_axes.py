@@ -20,10 +20,10 @@ from scipy.spatial import cKDTree
 from shared_models import MODELS
 
 from kinematics.machine import MachineGeometry
-from slicer.buildorder import region_axes
-from slicer.decompose import DecomposeSettings, decompose, nearest_reachable
+from slicer.decompose.buildorder import region_axes
+from slicer.decompose.decomposition import DecomposeSettings, decompose, nearest_reachable
+from slicer.decompose.partition import Partition
 from slicer.mesh.read import load_mesh
-from slicer.partition import Partition
 from slicer.printhead import Printhead
 
 HEAD = Printhead.default()

@@ -7,9 +7,9 @@ from shared_models import MODELS
 
 from kinematics.machine import MachineGeometry
 from kinematics.orient import reachable_mask, solve_orientation
-from slicer.decompose import DecomposeSettings, decompose, nearest_reachable
+from slicer.decompose.decomposition import DecomposeSettings, decompose, nearest_reachable
+from slicer.decompose.planes import Plane, unreachable_phrase, verify_base
 from slicer.mesh.read import load_mesh
-from slicer.planes import Plane, unreachable_phrase, verify_base
 from slicer.printhead import Printhead
 
 HEAD = Printhead.default()

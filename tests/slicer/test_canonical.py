@@ -14,7 +14,7 @@ import trimesh
 from shared_models import MODELS
 
 from kinematics.machine import MachineGeometry
-from slicer.decompose import DecomposeSettings, Decomposition, decompose
+from slicer.decompose.decomposition import DecomposeSettings, Decomposition, decompose
 from slicer.mesh.checks import repair
 from slicer.mesh.placement import canonical_mesh, place_on_platform
 from slicer.mesh.read import read_stl

@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from hostd.cli.main import main as hostctl
 from kinematics.machine import MachineGeometry
-from slicer.decompose import DecomposeSettings, DecompositionError, decompose
+from slicer.decompose.decomposition import DecomposeSettings, DecompositionError, decompose
 from slicer.mesh import samples
 from slicer.printhead import Printhead
 
@@ -180,8 +180,8 @@ SMALL_PIPE = {"branches": ((12.0, 0.0, 45.0),), "height": 24.0, "branch_length":
 def test_coarse_regions_are_edge_connected_large_and_reach_the_root(seed):
     # the small pipe's bore used to sever a sliver of the rim: a second body, whose regions
     # could not reach the root ("regions are not all connected")
-    from slicer.buildorder import bfs_tree, root_region
-    from slicer.partition import MIN_REGION_SHARE, boundary_lengths, coarse_partition
+    from slicer.decompose.buildorder import bfs_tree, root_region
+    from slicer.decompose.partition import MIN_REGION_SHARE, boundary_lengths, coarse_partition
 
     mesh = samples.branched_pipe(**SMALL_PIPE)
     part = coarse_partition(mesh, None, seed)

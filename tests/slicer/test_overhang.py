@@ -1,10 +1,10 @@
 """Overhang of a decomposition, and what the decomposition does about it.
 
-The measure (``slicer.overhang``) is checked against hand-computed areas on boxes and a T; the
-decomposition against the QA's Γ bracket and mushroom (built here with manifold3d): the Γ
-bracket's arm must not stay in the root for any seed, no sub-part may be degenerate, the
-mushroom (no plane decomposition exists) must be refused naming the overhang and a point on
-the part, and the sample pipes must keep today's result on the first attempt.
+The measure (``slicer.decompose.overhang``) is checked against hand-computed areas on boxes and
+a T; the decomposition against the QA's Γ bracket and mushroom (built here with manifold3d):
+the Γ bracket's arm must not stay in the root for any seed, no sub-part may be degenerate, the
+mushroom (no plane decomposition exists) must be refused naming the overhang and a point on the
+part, and the sample pipes must keep today's result on the first attempt.
 """
 
 from __future__ import annotations
@@ -17,14 +17,14 @@ import pytest
 import trimesh
 
 from kinematics.machine import MachineGeometry
-from slicer.buildorder import root_region
-from slicer.decompose import DecomposeSettings, DecompositionError, decompose
+from slicer.decompose.buildorder import root_region
+from slicer.decompose.decomposition import DecomposeSettings, DecompositionError, decompose
+from slicer.decompose.overhang import decomposition_overhang, subpart_overhang
+from slicer.decompose.partition import coarse_partition
+from slicer.decompose.planes import Plane
 from slicer.mesh import samples
 from slicer.mesh.checks import repair
 from slicer.mesh.placement import place_on_platform
-from slicer.overhang import decomposition_overhang, subpart_overhang
-from slicer.partition import coarse_partition
-from slicer.planes import Plane
 from slicer.planes2d import TOL
 from slicer.printhead import Printhead
 

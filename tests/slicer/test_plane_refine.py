@@ -9,13 +9,13 @@ import pytest
 import trimesh
 from decompose_checks import check_decomposition
 
-import slicer.plane_refine as refine
+import slicer.decompose.plane_refine as refine
 from kinematics.machine import MachineGeometry
-from slicer.decompose import DecomposeSettings, decompose
+from slicer.decompose.decomposition import DecomposeSettings, decompose
+from slicer.decompose.planes import PieceContext, Plane, SearchSettings, evaluate
+from slicer.decompose.split import split_solid
 from slicer.mesh.samples import branched_pipe, pipe2, to_manifold, to_trimesh
-from slicer.planes import PieceContext, Plane, SearchSettings, evaluate
 from slicer.printhead import Printhead
-from slicer.split import split_solid
 
 GEO = MachineGeometry()
 HEAD = Printhead.default()

@@ -89,8 +89,8 @@ def test_planar_control_of_a_steeper_branch_fails_both_wall_targets(sliced):
 
 
 def test_five_axis_print_of_a_steeper_branch_meets_the_wall_share_target(sliced):
-    """The refined cut (slicer.plane_refine) takes the 30° branch's root off the trunk: the
-    walls meet the share target and only a handful of layers stay above 5 %."""
+    """The refined cut (slicer.decompose.plane_refine) takes the 30° branch's root off the
+    trunk: the walls meet the share target and only a handful of layers stay above 5 %."""
     five, planar = sliced("steep").replay, sliced("steep", planar=True).replay
     assert five["collisions"] == 0
     assert five["wall_supported"] >= 0.995 > planar["wall_supported"]

@@ -16,8 +16,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from slicer.decompose.planes import EPS, PROXY_FACES, PROXY_TOLERANCES, Plane
 from slicer.mesh import to_manifold, to_trimesh
-from slicer.planes import EPS, PROXY_FACES, PROXY_TOLERANCES, Plane
 
 HULL_MARGIN = 0.5  # mm: the bounded cutter clears the child's hull by at least this / √3
 VOLUME_RTOL = 1e-6  # the bounded cut must take the child's volume and no more

@@ -22,7 +22,7 @@ import numpy as np
 import trimesh
 
 from kinematics.machine import MachineGeometry
-from slicer.decompose import (
+from slicer.decompose.decomposition import (
     DecomposeSettings,
     Decomposition,
     DecompositionError,

@@ -12,7 +12,7 @@ the area of the parent's surface, after the cut, that faces down more than
 horizontal lets the plane come closer to the tube on its lower side, where the overhang is.
 
 The residual is measured on the piece's surface samples (about one per mm², see
-:class:`slicer.planes.PieceContext`), so it is an area in mm² up to sampling noise.
+:class:`slicer.decompose.planes.PieceContext`), so it is an area in mm² up to sampling noise.
 """
 
 from __future__ import annotations
@@ -23,8 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from slicer.mesh import to_trimesh
-from slicer.planes import (
+from slicer.decompose.planes import (
     Check,
     PieceContext,
     Plane,
@@ -35,8 +34,9 @@ from slicer.planes import (
     surface_samples,
     verify_base,
 )
+from slicer.decompose.split import split_solid
+from slicer.mesh import to_trimesh
 from slicer.printhead import Printhead
-from slicer.split import split_solid
 
 OVERHANG_DEG = 47.0  # faces steeper than this from the build direction count (45° + slack)
 BASE_TOL = 0.05  # mm: samples this close to the parent's own base plane are its base face

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slicer.partition import Partition, boundary_lengths, split_region
+from slicer.decompose.partition import Partition, boundary_lengths, split_region
 
 MERGE_ANGLE = 25.0  # degrees between a region's axis and its group's direction
 TUBULAR_RATIO = 0.35  # λ_min / λ_mid of the normal covariance below which a region has an axis
@@ -287,10 +287,10 @@ def group_regions_refined(part: Partition, root: int, merge_angle: float = MERGE
     group by its boundary only, and overhangs along that group's direction: a k-means patch
     straddling the end of a solid branch and the tube it leaves (no axis: the two tubes'
     normals mix) would print the branch in the tube's layers. Each stranded region is cut in
-    two (:func:`slicer.partition.split_region`); the cut is kept only when it reveals a branch:
-    a half that is a clean tube (:func:`clean_tubes`) whose axis is more than ``merge_angle``
-    away from the group's direction. The groups are then built again, at most ``rounds``
-    times.
+    two (:func:`slicer.decompose.partition.split_region`); the cut is kept only when it
+    reveals a branch: a half that is a clean tube (:func:`clean_tubes`) whose axis is more
+    than ``merge_angle`` away from the group's direction. The groups are then built again, at
+    most ``rounds`` times.
 
     Parameters
     ----------

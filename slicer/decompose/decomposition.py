@@ -1,11 +1,12 @@
 """The decomposition pipeline: STL mesh → support-free sub-parts with a build order.
 
 ``decompose`` = repair/placement (:mod:`slicer.mesh`) → k-means coarse partition
-(:mod:`slicer.partition`) → groups and BFS build order (:mod:`slicer.buildorder`) → one
-separating plane per parent→child edge found by the directed local search
-(:mod:`slicer.planes`) → manifold3d split (:mod:`slicer.split`) → an independent check of
-constraints I and II on the final pieces in build order. It never returns a decomposition that
-breaks a constraint: it raises :class:`DecompositionError` instead.
+(:mod:`slicer.decompose.partition`) → groups and BFS build order
+(:mod:`slicer.decompose.buildorder`) → one separating plane per parent→child edge found by the
+directed local search (:mod:`slicer.decompose.planes`) → manifold3d split
+(:mod:`slicer.decompose.split`) → an independent check of constraints I and II on the final
+pieces in build order. It never returns a decomposition that breaks a constraint: it raises
+:class:`DecompositionError` instead.
 """
 
 from __future__ import annotations
@@ -25,21 +26,11 @@ from scipy.spatial import cKDTree
 
 from kinematics.machine import MachineGeometry
 from kinematics.orient import nearest_reachable_direction
-from slicer.buildorder import MERGE_ANGLE, Groups, group_regions_refined, root_region
-from slicer.mesh import (
-    BaseChoice,
-    canonical_mesh,
-    check_size,
-    place_on_platform,
-    repair,
-    separate_bodies,
-    to_manifold,
-    to_trimesh,
-)
-from slicer.overhang import Overhang, decomposition_overhang
-from slicer.partition import K_MIN, Partition, analysis_mesh, auto_k, coarse_partition
-from slicer.plane_refine import ParentFrame, refine_plane, splits_clear
-from slicer.planes import (
+from slicer.decompose.buildorder import MERGE_ANGLE, Groups, group_regions_refined, root_region
+from slicer.decompose.overhang import Overhang, decomposition_overhang
+from slicer.decompose.partition import K_MIN, Partition, analysis_mesh, auto_k, coarse_partition
+from slicer.decompose.plane_refine import ParentFrame, refine_plane, splits_clear
+from slicer.decompose.planes import (
     Check,
     PieceContext,
     Plane,
@@ -51,9 +42,19 @@ from slicer.planes import (
     unreachable_phrase,
     verify_base,
 )
+from slicer.decompose.split import search_proxy, split_piece, split_solid
+from slicer.mesh import (
+    BaseChoice,
+    canonical_mesh,
+    check_size,
+    place_on_platform,
+    repair,
+    separate_bodies,
+    to_manifold,
+    to_trimesh,
+)
 from slicer.planes2d import TOL
 from slicer.printhead import Printhead
-from slicer.split import search_proxy, split_piece, split_solid
 
 UP = np.array([0.0, 0.0, 1.0])
 log = logging.getLogger(__name__)
@@ -143,9 +144,9 @@ class Decomposition:
     attempts : list of str
         One line per attempt, in the order tried (seed, K, outcome).
     overhang : list of Overhang
-        Overhanging surface of every sub-part (:mod:`slicer.overhang`).
+        Overhanging surface of every sub-part (:mod:`slicer.decompose.overhang`).
     base : BaseChoice or None
-        The flat face it stands on and the faces tried (:func:`slicer.bases.decompose_on_bases`;
+        The flat face it stands on and the faces tried (:func:`slicer.decompose.decompose_on_bases`;
         None from :func:`decompose`, which takes the part as placed).
     """
 

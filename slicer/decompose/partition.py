@@ -9,7 +9,7 @@ pieces are split, and pieces below a share of the area are merged into the neigh
 share the longest boundary with.
 
 K by default is chosen from the shape itself: the part is over-segmented into patches about as
-wide as its narrowest extent (:func:`auto_k`), and :mod:`slicer.buildorder` then merges
+wide as its narrowest extent (:func:`auto_k`), and :mod:`slicer.decompose.buildorder` then merges
 neighbouring patches whose union prints along one direction. The final number of sub-parts
 therefore comes from the geometry, not from K.
 """

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
-from slicer.planes import Plane
+from slicer.decompose.planes import Plane
 from slicer.planes2d import TOL
 
 
