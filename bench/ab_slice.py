@@ -44,10 +44,14 @@ def one(model: str, height: float) -> dict[str, Any]:
     from harness import MODELS, cpu_seconds
 
     from kinematics.machine import MachineGeometry
-    from slicer import planner
     from slicer.pipeline import slice_model
     from slicer.printhead import Printhead
     from slicer.settings import ProcessSettings
+
+    try:
+        from slicer.paths import planner
+    except ImportError:  # a checkout from before the slicer's sub-packages
+        from slicer import planner
 
     mesh = MODELS[model]()
     planner.clear_caches()

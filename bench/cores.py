@@ -21,7 +21,7 @@ from pathlib import Path
 from harness import MODELS, check_models
 
 from kinematics.machine import MachineGeometry
-from slicer import planner
+from slicer.paths import planner
 from slicer.pipeline import slice_model
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings

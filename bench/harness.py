@@ -14,7 +14,10 @@ from typing import TypeVar
 
 import trimesh
 
-from slicer.mesh import samples
+try:
+    from slicer.mesh import samples
+except ImportError:  # bench/ab_slice.py's other checkout, from before slicer/mesh/
+    from slicer import samples
 
 T = TypeVar("T")
 

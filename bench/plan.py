@@ -11,7 +11,7 @@ runs on the same sub-parts: ``PYTHONPATH=/path/to/old/checkout .venv/bin/python 
 
 Stages: sections, skeleton, layers (marching) and obstacles are wall seconds of the main
 thread; paths is the wall time of the toolpath stage that follows (all sub-parts at once, the
-per-layer polygon work on a thread pool, :mod:`slicer.subpart_paths`); zones and toolpaths
+per-layer polygon work on a thread pool, :mod:`slicer.paths.subpart_paths`); zones and toolpaths
 are the CPU seconds of the threads inside it (on two cores they add up to more than paths).
 """
 
@@ -26,8 +26,8 @@ import trimesh
 from harness import MODELS, best_of, check_models
 
 from kinematics.machine import MachineGeometry
-from slicer import planner
 from slicer.decompose import DecomposeSettings, Decomposition, decompose
+from slicer.paths import planner
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings

@@ -22,7 +22,7 @@ import trimesh
 from harness import MODELS, best_of, check_models
 
 from kinematics.machine import MachineGeometry
-from slicer import planner
+from slicer.paths import planner
 from slicer.pipeline import SliceResult, slice_model
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings

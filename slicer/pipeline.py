@@ -127,7 +127,7 @@ def plan_model(mesh: trimesh.Trimesh, placement: np.ndarray, settings: ProcessSe
     placed (:func:`slicer.decompose.bases.decompose_on_bases`); the plan's ``base.turn`` then moves
     ``mesh`` to where the plan stands it (:func:`slicer.mesh.placement.moved`).
     """
-    from slicer.planner import plan_planar, plan_print
+    from slicer.paths import plan_planar, plan_print
 
     if planar:
         return plan_planar(mesh, settings, geometry, placement)

@@ -34,7 +34,7 @@ import trimesh
 
 from kinematics.machine import MachineGeometry
 from slicer.gcode_reader import GcodeFormatError, ParsedGcode, read_gcode
-from slicer.layers import SlicingError
+from slicer.paths import SlicingError
 from slicer.printhead import Printhead, Segment
 from slicer.replay_collide import find_collisions
 from slicer.replay_coverage import coverage

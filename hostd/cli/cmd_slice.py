@@ -60,8 +60,8 @@ def _inputs(args: argparse.Namespace) -> dict[str, Any]:
 def _slice(args: argparse.Namespace, inputs: dict[str, Any]) -> Any:
     from slicer.decompose import DecompositionError
     from slicer.gcode import GcodeError
-    from slicer.layers import SlicingError
     from slicer.mesh import MeshError
+    from slicer.paths import SlicingError
     from slicer.pipeline import CollisionError, SliceError, slice_model
 
     try:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from slicer import interfaces
-from slicer.interfaces import ChildBase, interface_zone
-from slicer.layers import LayerPlane
+from slicer.paths import interfaces
+from slicer.paths.interfaces import ChildBase, interface_zone
+from slicer.paths.layers import LayerPlane
 from slicer.planes2d import plane_frame
 
 T, WIDTH = 0.2, 0.45

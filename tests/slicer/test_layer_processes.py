@@ -16,7 +16,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 CHILD = textwrap.dedent("""
     import os, sys
-    from slicer.layer_workers import layer_processes
+    from slicer.paths.layer_workers import layer_processes
 
     with layer_processes(10_000) as procs:
         assert procs is not None
@@ -58,7 +58,7 @@ def test_workers_die_with_a_killed_slicer() -> None:
 def test_a_failing_slicer_drops_the_chunks_not_started() -> None:
     """An error while the workers have work queued (a sub-part whose stage 3 fails) leaves
     at once: the queued chunks are cancelled, not computed first."""
-    from slicer.layer_workers import layer_processes
+    from slicer.paths.layer_workers import layer_processes
 
     queued = []
     with pytest.raises(RuntimeError, match="no plane"), layer_processes(1, min_layers=1) as procs:
@@ -76,7 +76,7 @@ def test_a_layer_is_read_once_its_own_chunk_is_in() -> None:
     from concurrent.futures import Future
     from concurrent.futures.process import BrokenProcessPool
 
-    from slicer.layer_workers import _Chunks
+    from slicer.paths.layer_workers import _Chunks
 
     def chunk(lo: int, hi: int, tag: str):  # type: ignore[no-untyped-def]
         return ([(f"{tag} shell {i}", 0.0) for i in range(lo, hi)],

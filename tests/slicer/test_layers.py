@@ -7,16 +7,16 @@ import numpy as np
 import pytest
 import shapely
 
-from slicer.layers import (
+from slicer.mesh.samples import to_trimesh
+from slicer.paths.layers import (
     MarchSettings,
     SlicingError,
     local_thickness,
     march_layers,
     turn_toward,
 )
-from slicer.mesh.samples import to_trimesh
+from slicer.paths.skeleton import fit_curve, line_curve
 from slicer.planes2d import TOL, from_plane, map_between, plane_frame, section, to_plane
-from slicer.skeleton import fit_curve, line_curve
 
 MS = MarchSettings(0.2, 0.5, 1.5)
 

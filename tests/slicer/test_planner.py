@@ -18,10 +18,10 @@ import shapely.affinity
 
 from kinematics.machine import MachineGeometry
 from kinematics.transform import machine_direction
-from slicer.layer_workers import _staged_in_processes as REAL_STAGED
-from slicer.layers import LayerPlane
 from slicer.mesh.samples import to_trimesh
-from slicer.planner import SlicingError, plan_planar, plan_print
+from slicer.paths.layer_workers import _staged_in_processes as REAL_STAGED
+from slicer.paths.layers import LayerPlane
+from slicer.paths.planner import SlicingError, plan_planar, plan_print
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 
@@ -225,10 +225,10 @@ def test_thin_wall_interface_is_solid_under_the_child(pipe2_plan) -> None:
     are marked "interface", and (with loops in the slivers they miss) those beads cover the
     zone: ≥ 95 % over all interface layers, most of it on each (the last layers' zones are
     slivers of the junction a few tenths of a millimetre wide)."""
-    from slicer.interfaces import interface_zone
-    from slicer.layers import LayerPlane
+    from slicer.paths.interfaces import interface_zone
+    from slicer.paths.layers import LayerPlane
+    from slicer.paths.planner import _child_base
     from slicer.planes2d import section, slicing_solid
-    from slicer.planner import _child_base
 
     dec, plan = pipe2_plan
     root = plan.subparts[0]
@@ -309,8 +309,8 @@ def _plane(index: int, origin, normal, region) -> LayerPlane:
 
 
 def _footings(lower, upper):
-    from slicer.toolpaths import FillSpec, shell
-    from slicer.zones import under_walls
+    from slicer.paths.toolpaths import FillSpec, shell
+    from slicer.paths.zones import under_walls
 
     spec = FillSpec(S.line_width, S.perimeters, S.infill_density, S.infill_angle)
     shells = [shell(lp.region, spec) for lp in (lower, upper)]
@@ -387,7 +387,7 @@ def _plan_with(leaning, monkeypatch, threads: int, procs: str, chunked: list[int
     or "broken" / "dies" / "breaks" (a pool that fails at once, on every second chunk, or
     refuses chunks after the first: the threads take over). Layers of sub-parts sent to the
     pool are added to ``chunked``."""
-    from slicer import layer_workers, planner
+    from slicer.paths import layer_workers, planner
 
     def staged(layers, *args):  # type: ignore[no-untyped-def]
         chunked.append(len(layers))
@@ -425,7 +425,7 @@ def test_a_long_sub_part_is_sent_to_the_workers_before_the_next_is_marched(
         leaning, monkeypatch) -> None:
     """The workers compute a marched sub-part's shells and zones while the planner marches
     the sub-parts after it."""
-    from slicer import layer_workers, planner
+    from slicer.paths import layer_workers, planner
 
     if (os.cpu_count() or 1) < 2:
         pytest.skip("worker processes need two cores")
@@ -463,7 +463,7 @@ def _assert_same_paths(one, other) -> None:  # type: ignore[no-untyped-def]
 
 
 def test_planar_plan_is_the_same_with_worker_processes(monkeypatch) -> None:
-    from slicer import layer_workers, planner
+    from slicer.paths import layer_workers, planner
 
     if (os.cpu_count() or 1) < 2:
         pytest.skip("worker processes need two cores")
@@ -482,7 +482,7 @@ def test_planar_plan_is_the_same_with_worker_processes(monkeypatch) -> None:
 
 
 def test_inline_executor_delivers_results_and_errors() -> None:
-    from slicer.subpart_paths import InlineExecutor
+    from slicer.paths.subpart_paths import InlineExecutor
 
     ex = InlineExecutor()
     assert list(ex.map(lambda x: x * x, [1, 2, 3])) == [1, 4, 9]

@@ -18,8 +18,8 @@ from slicer import (
 )
 from slicer.gcode import MachineSetup, generate
 from slicer.gcode_reader import parse_lines
-from slicer.layers import SlicingError
 from slicer.mesh.samples import to_manifold, to_trimesh
+from slicer.paths.layers import SlicingError
 from slicer.replay import ReplayBudgetError, memory_estimate, model_index, replay_check
 from slicer.replay_samples import (
     extruding_moves,

@@ -120,7 +120,7 @@ def test_the_daemon_job_fails_with_the_message(tmp_path, monkeypatch):
     from hostd.config.loader import defaults
     from hostd.slicing_worker import SliceError, slice_in_worker
     from slicer import pipeline
-    from slicer.planner import plan_planar
+    from slicer.paths.planner import plan_planar
 
     monkeypatch.setattr(pipeline, "plan_model", lambda mesh, placement, settings, geometry,
                         *_a, **_k: plan_planar(mesh, settings, geometry, placement))

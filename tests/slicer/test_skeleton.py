@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from slicer.mesh.samples import to_trimesh
-from slicer.skeleton import fit_curve, line_curve, main_chain, skeleton_curve
+from slicer.paths.skeleton import fit_curve, line_curve, main_chain, skeleton_curve
 
 
 def _bent_tube(bend_deg: float = 90.0, radius: float = 5.0, bend: float = 30.0,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import shapely
 
-from slicer.toolpaths import (
+from slicer.paths.toolpaths import (
     MAX_LINK,
     QUAD_SEGS,
     FillSpec,

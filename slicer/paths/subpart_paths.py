@@ -19,7 +19,7 @@ GEOS call (manifold3d and CGAL keep it while they work), which cost more than th
 gained.
 
 A sub-part of many layers (the root of a branched part holds most of them) has its stages 1
-and 2 computed in worker processes instead (:mod:`slicer.layer_workers`), started as soon as
+and 2 computed in worker processes instead (:mod:`slicer.paths.layer_workers`), started as soon as
 it is marched; :func:`build_layers` then reads them layer by layer in stage 3.
 
 Stage timings are CPU seconds of the threads doing the work (:func:`time.thread_time`),
@@ -39,13 +39,13 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from slicer.interfaces import ChildBase, layer_interface
-from slicer.layers import LayerPlane, local_thickness
+from slicer.paths.interfaces import ChildBase, layer_interface
+from slicer.paths.layers import LayerPlane, local_thickness
+from slicer.paths.toolpaths import FillSpec, Path2D, Shell, fill_paths, layer_paths, shell
+from slicer.paths.zones import solid_zone, wall_footing
 from slicer.plan import Layer, Path
 from slicer.planes2d import from_plane, polygonal
 from slicer.settings import ProcessSettings
-from slicer.toolpaths import FillSpec, Path2D, Shell, fill_paths, layer_paths, shell
-from slicer.zones import solid_zone, wall_footing
 
 T = TypeVar("T")
 T_co = TypeVar("T_co", covariant=True)
@@ -226,7 +226,7 @@ def build_layers(index: int, layers: list[LayerPlane], poses: list[tuple[float, 
         Runs stages 1 and 2 unless ``staged``; its tasks never wait on each other.
     staged : optional
         Stages 1 and 2 already started in worker processes
-        (:func:`slicer.layer_workers.start_stages`).
+        (:func:`slicer.paths.layer_workers.start_stages`).
 
     Returns
     -------

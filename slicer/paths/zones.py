@@ -30,7 +30,7 @@ from collections.abc import Sequence
 import shapely
 from shapely.geometry.base import BaseGeometry
 
-from slicer.layers import LayerPlane
+from slicer.paths.layers import LayerPlane
 from slicer.planes2d import TOL, map_between, polygonal
 
 
@@ -105,7 +105,7 @@ def under_walls(layers: Sequence[LayerPlane], inners: Sequence[BaseGeometry],
     layers : sequence of LayerPlane
         One sub-part's layers in order.
     inners : sequence of shapely geometry
-        Per layer, the region inside its perimeters (:attr:`slicer.toolpaths.Shell.inner`);
+        Per layer, the region inside its perimeters (:attr:`slicer.paths.toolpaths.Shell.inner`);
         the wall band is the region less this.
     domains : sequence of shapely geometry
         Per layer, where fill goes.
@@ -148,7 +148,7 @@ def solid_zones(layers: Sequence[LayerPlane], k: int, grounded: bool,
         True when nothing lies under the first layer (the root on the platform); a child's first
         layers sit on its parent and get no bottom skin.
     domains : sequence of shapely geometry, optional
-        Per layer, where fill goes (:func:`slicer.toolpaths.fill_domain`); the whole region
+        Per layer, where fill goes (:func:`slicer.paths.toolpaths.fill_domain`); the whole region
         when omitted.
 
     Returns

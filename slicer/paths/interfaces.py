@@ -20,7 +20,7 @@ import shapely
 import shapely.affinity
 from shapely.geometry.base import BaseGeometry
 
-from slicer.layers import LayerPlane
+from slicer.paths.layers import LayerPlane
 from slicer.planes2d import polygonal
 
 MIN_COS = 0.2  # |n_layer · n_base| below which a layer gets no interface zone

@@ -1,5 +1,5 @@
 """Worker processes for the stages 1 and 2 of a long sub-part's layers (see
-:mod:`slicer.subpart_paths` for the stages).
+:mod:`slicer.paths.subpart_paths` for the stages).
 
 A sub-part of :data:`CHUNK_MIN_LAYERS` layers or more (the root of a branched part holds most
 of them, its branches tens) has its shells and zones computed in forked worker processes, by
@@ -32,10 +32,9 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
-from slicer.interfaces import ChildBase
-from slicer.layers import LayerPlane
-from slicer.settings import ProcessSettings
-from slicer.subpart_paths import (
+from slicer.paths.interfaces import ChildBase
+from slicer.paths.layers import LayerPlane
+from slicer.paths.subpart_paths import (
     MAX_WORKERS,
     LayerJob,
     Staged,
@@ -45,7 +44,8 @@ from slicer.subpart_paths import (
     fill_spec,
     timed,
 )
-from slicer.toolpaths import Shell, shell
+from slicer.paths.toolpaths import Shell, shell
+from slicer.settings import ProcessSettings
 
 CHUNK_MIN_LAYERS = 20  # a sub-part with this many layers has stages 1-2 in processes
 CHUNKS_PER_PROCESS = 3  # chunks of layers per worker process: evens out unequal chunks
@@ -174,7 +174,7 @@ def start_stages(layers: list[LayerPlane], settings: ProcessSettings, grounded: 
                  min_layers: int = CHUNK_MIN_LAYERS) -> Stages | None:
     """Stages 1 and 2 of a sub-part of ``min_layers`` layers or more, started by chunks in
     ``procs`` (:func:`layer_processes`), to be read by
-    :func:`~slicer.subpart_paths.build_layers`; ``None`` for a
+    :func:`~slicer.paths.subpart_paths.build_layers`; ``None`` for a
     shorter sub-part, without ``procs`` or when the pool is broken (the threads then do it).
 
     The planner starts them as soon as the sub-part is marched, so the workers compute while

@@ -33,8 +33,8 @@ import shapely
 from numpy.typing import ArrayLike
 from shapely.geometry.base import BaseGeometry
 
+from slicer.paths.skeleton import SkeletonCurve
 from slicer.planes2d import TOL, from_plane, plane_frame, section, transport_frame, unit
-from slicer.skeleton import SkeletonCurve
 
 MAX_HALVINGS = 8  # turn halvings before giving up on a turn (then the previous normal)
 NEWTON_STEPS = 4  # iterations finding the curve point t above the previous plane

@@ -1,7 +1,7 @@
 """Print planning: decomposition → skeleton curves → marched layers → toolpaths → PrintPlan.
 
 :func:`plan_print` slices every sub-part in build order along its skeleton curve
-(:mod:`slicer.skeleton`, :mod:`slicer.layers`), choosing A/C per layer with
+(:mod:`slicer.paths.skeleton`, :mod:`slicer.paths.layers`), choosing A/C per layer with
 :func:`kinematics.orient.solve_orientation` (C continuity) and vetoing planes whose A is out of
 range or whose printhead would hold printed material or cross the platform (the turn is then
 limited; :class:`SlicingError` names sub-part, layer and obstacle when even an unturned plane
@@ -29,15 +29,15 @@ from shapely.geometry.base import BaseGeometry
 from kinematics.errors import UnreachableDirection
 from kinematics.machine import MachineGeometry
 from kinematics.orient import solve_orientation
-from slicer.interfaces import ChildBase
-from slicer.layer_workers import layer_processes, start_stages
-from slicer.layers import LayerPlane, MarchSettings, SlicingError, march_layers
+from slicer.paths.interfaces import ChildBase
+from slicer.paths.layer_workers import layer_processes, start_stages
+from slicer.paths.layers import LayerPlane, MarchSettings, SlicingError, march_layers
+from slicer.paths.skeleton import SkeletonCurve, line_curve, skeleton_curve
+from slicer.paths.subpart_paths import build_layers, pool, workers
 from slicer.plan import Layer, PrintPlan, SubpartPlan
 from slicer.planes2d import from_plane, plane_frame, section, slicing_solid
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
-from slicer.skeleton import SkeletonCurve, line_curve, skeleton_curve
-from slicer.subpart_paths import build_layers, pool, workers
 
 if TYPE_CHECKING:
     from slicer.decompose import Decomposition, Subpart
