@@ -26,7 +26,7 @@ import trimesh
 from harness import MODELS
 
 from kinematics.machine import MachineGeometry
-from slicer.gcode_reader import parse_lines
+from slicer.gcode import parse_lines
 from slicer.mesh import place_on_platform, repair, to_trimesh
 from slicer.pipeline import slice_model
 from slicer.printhead import Printhead

@@ -20,7 +20,7 @@ import trimesh
 from harness import MODELS, check_models
 
 from kinematics.machine import MachineGeometry
-from slicer.gcode_reader import ParsedGcode, parse_lines
+from slicer.gcode import ParsedGcode, parse_lines
 from slicer.hugepages import small_pages
 from slicer.mesh import place_on_platform, repair
 from slicer.pipeline import slice_model

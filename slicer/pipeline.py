@@ -23,9 +23,7 @@ from numpy.typing import ArrayLike
 
 from kinematics.machine import MachineGeometry
 from slicer import envelope
-from slicer.gcode import Draft, MachineSetup, draft
-from slicer.gcode_program import E
-from slicer.gcode_reader import parse_words
+from slicer.gcode import Draft, E, MachineSetup, draft, parse_words
 from slicer.hugepages import small_pages
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead

@@ -33,7 +33,7 @@ import numpy as np
 import trimesh
 
 from kinematics.machine import MachineGeometry
-from slicer.gcode_reader import GcodeFormatError, ParsedGcode, read_gcode
+from slicer.gcode import GcodeFormatError, ParsedGcode, read_gcode
 from slicer.paths import SlicingError
 from slicer.printhead import Printhead, Segment
 from slicer.replay_collide import find_collisions

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slicer.gcode_reader import ParsedGcode
+from slicer.gcode import ParsedGcode
 from slicer.printhead import Printhead
 from slicer.replay_kdtree import point_tree
 from slicer.replay_samples import Samples

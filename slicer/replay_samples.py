@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from kinematics.machine import MachineGeometry
-from slicer.gcode_reader import GcodeFormatError, ParsedGcode
+from slicer.gcode import GcodeFormatError, ParsedGcode
 
 CHUNK_SAMPLES = 1 << 18  # samples computed at once (their temporaries stay bounded)
 

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from slicer.estimate import MotionLimits, estimate_program, move_times, trapezoid_time
-from slicer.gcode_program import NCOL, SUB, E, F, G
+from slicer.gcode.estimate import MotionLimits, estimate_program, move_times, trapezoid_time
+from slicer.gcode.program import NCOL, SUB, E, F, G
 
 LIM = MotionLimits(max_velocity=200.0, max_accel=1000.0, max_rotary_velocity=90.0,
                    max_rotary_accel=360.0)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from slicer.gcode_reader import GcodeFormatError, parse_lines
+from slicer.gcode.reader import GcodeFormatError, parse_lines
 
 
 def test_positions_are_modal_and_feed_is_mm_per_s():

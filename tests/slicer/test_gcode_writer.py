@@ -12,10 +12,10 @@ from handmade_plans import H, W, box_plan, two_part_plan
 
 from kinematics.machine import MachineGeometry
 from kinematics.transform import forward, inverse
-from slicer.extrusions import forward_at
-from slicer.gcode import MachineSetup, draft, generate, path_extrusion
-from slicer.gcode_format import DECIMALS, format_moves, format_moves_reference
-from slicer.gcode_reader import parse_lines, parse_words
+from slicer.gcode.extrusions import forward_at
+from slicer.gcode.format import DECIMALS, format_moves, format_moves_reference
+from slicer.gcode.reader import parse_lines, parse_words
+from slicer.gcode.writer import MachineSetup, draft, generate, path_extrusion
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
 from slicer.replay import part_frame_path
 from slicer.settings import ProcessSettings

@@ -10,8 +10,8 @@ from handmade_plans import H, box_plan, frame, prism_layers, prism_mesh, two_par
 
 from kinematics.machine import MachineGeometry
 from slicer import replay, replay_collide
-from slicer.gcode import MachineSetup, generate
-from slicer.gcode_reader import GcodeFormatError, parse_lines
+from slicer.gcode.reader import GcodeFormatError, parse_lines
+from slicer.gcode.writer import MachineSetup, generate
 from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.plan import PrintPlan, SubpartPlan
 from slicer.replay import model_index, replay_check

@@ -24,8 +24,8 @@ from shared_models import MODELS
 from kinematics.machine import MachineGeometry
 from kinematics.orient import solve_orientation
 from slicer import replay
-from slicer.gcode import MachineSetup, generate
-from slicer.gcode_reader import parse_lines
+from slicer.gcode.reader import parse_lines
+from slicer.gcode.writer import MachineSetup, generate
 from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.pipeline import slice_model
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan

@@ -16,8 +16,8 @@ from slicer import (
     replay_samples,
     replay_support,
 )
-from slicer.gcode import MachineSetup, generate
-from slicer.gcode_reader import parse_lines
+from slicer.gcode.reader import parse_lines
+from slicer.gcode.writer import MachineSetup, generate
 from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.paths.layers import SlicingError
 from slicer.replay import ReplayBudgetError, memory_estimate, model_index, replay_check

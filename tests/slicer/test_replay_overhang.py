@@ -15,8 +15,8 @@ from handmade_plans import H, box_plan, prism_mesh
 from hostd.cli.errors import EXIT_FAILED
 from hostd.cli.main import main
 from kinematics.machine import MachineGeometry
-from slicer.gcode import MachineSetup, generate
-from slicer.gcode_reader import parse_lines
+from slicer.gcode.reader import parse_lines
+from slicer.gcode.writer import MachineSetup, generate
 from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.pipeline import OverhangError, overhang_message, slice_model
 from slicer.printhead import Printhead

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from kinematics.machine import MachineGeometry
-from slicer.gcode_reader import parse_lines
+from slicer.gcode.reader import parse_lines
 from slicer.mesh.samples import branched_pipe, pipe2, pipe3
 from slicer.pipeline import slice_model
 from slicer.printhead import Printhead

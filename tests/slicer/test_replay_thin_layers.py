@@ -8,7 +8,7 @@ import manifold3d as m3
 import pytest
 
 from kinematics.machine import MachineGeometry
-from slicer.gcode_reader import parse_lines
+from slicer.gcode.reader import parse_lines
 from slicer.mesh.samples import to_trimesh
 from slicer.pipeline import OverhangError, slice_model
 from slicer.printhead import Printhead

@@ -21,7 +21,7 @@ from slicer.envelope import (
     place_of,
     travel_violation,
 )
-from slicer.gcode import MachineSetup, draft, generate
+from slicer.gcode.writer import MachineSetup, draft, generate
 from slicer.mesh.errors import MeshError
 from slicer.mesh.read import load_mesh
 from slicer.mesh.samples import cylinder, to_trimesh

@@ -7,7 +7,7 @@ import pytest
 
 from kinematics.machine import MachineGeometry
 from kinematics.transform import forward
-from slicer.transitions import (
+from slicer.gcode.transitions import (
     PLATFORM_MARGIN,
     obstacle_hull,
     plan_transition,

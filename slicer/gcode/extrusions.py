@@ -1,6 +1,6 @@
 """Every path of a plan as one run of vertices: filament per segment and joint poses.
 
-The G-code writer (:mod:`slicer.gcode`) needs, per path vertex, the filament of the segment
+The G-code writer (:mod:`slicer.gcode.writer`) needs, per path vertex, the filament of the segment
 ending there and the machine position at the layer's table angles. Both are computed for the
 whole plan at once here instead of per path.
 """

@@ -269,7 +269,7 @@ def _move_rows(st: _State, vals: np.ndarray, mask: np.ndarray, g1: np.ndarray, n
 def parse_words(items: Iterable[str | tuple[np.ndarray, np.ndarray, np.ndarray]]
                 ) -> ParsedGcode:
     """Parse a file given as raw lines and blocks of move lines already as numbers
-    (:meth:`slicer.gcode_program.Program.words`): the same result as :func:`parse_lines` of
+    (:meth:`slicer.gcode.program.Program.words`): the same result as :func:`parse_lines` of
     its text, without formatting and re-reading the moves."""
     st = _State()
     n = 0

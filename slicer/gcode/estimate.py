@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from slicer.gcode_program import SUB, E, F, G
+from slicer.gcode.program import SUB, E, F, G
 from slicer.settings import ProcessSettings
 
 
@@ -153,7 +153,7 @@ def deposited(start: np.ndarray, end: np.ndarray, e: np.ndarray) -> np.ndarray:
 
 def estimate_program(rows: np.ndarray, limits: MotionLimits, area: float,
                      density: float) -> Estimate:
-    """Estimate of a program's move rows (see :mod:`slicer.gcode_program`), (n, 9).
+    """Estimate of a program's move rows (see :mod:`slicer.gcode.program`), (n, 9).
 
     ``area`` is the filament cross-section (mm²) and ``density`` the material's (g/mm³).
     """

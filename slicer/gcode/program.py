@@ -1,9 +1,9 @@
 """A G-code program under construction: comment lines interleaved with numeric move blocks.
 
-The writer (:mod:`slicer.gcode`) emits whole blocks of joint-space moves at once (numpy rows),
-so estimating and formatting stay vectorised. Every move row holds the pose it ends at and
-the filament it pushes; the program formats them as ``G0``/``G1`` lines with absolute X Y Z A C
-(G90) and relative E (M83), writing an axis only when its printed value changes.
+The writer (:mod:`slicer.gcode.writer`) emits whole blocks of joint-space moves at once (numpy
+rows), so estimating and formatting stay vectorised. Every move row holds the pose it ends at
+and the filament it pushes; the program formats them as ``G0``/``G1`` lines with absolute X Y Z
+A C (G90) and relative E (M83), writing an axis only when its printed value changes.
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from slicer.gcode_format import format_moves
+from slicer.gcode.format import format_moves
 
 # columns of a move row
 X, Y, Z, A, C, E, F, G, SUB = range(9)

@@ -23,13 +23,13 @@ from kinematics.linearize import linearize_move
 from kinematics.machine import MachineGeometry
 from kinematics.transform import inverse, table_rotation
 from slicer.envelope import DEFAULT_TRAVEL
-from slicer.estimate import Estimate, MotionLimits, estimate_program
-from slicer.extrusions import Extrusions, joint_poses
-from slicer.gcode_program import AC_DECIMALS, XYZ_DECIMALS, MoveWords, Program
+from slicer.gcode.estimate import Estimate, MotionLimits, estimate_program
+from slicer.gcode.extrusions import Extrusions, joint_poses
+from slicer.gcode.program import AC_DECIMALS, XYZ_DECIMALS, MoveWords, Program
+from slicer.gcode.transitions import obstacle_hull, plan_transition, platform_rim, safe_height_z
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
-from slicer.transitions import obstacle_hull, plan_transition, platform_rim, safe_height_z
 
 RETRACT_MIN_TRAVEL = 2.0  # mm: shorter travels neither retract nor hop
 PLA_DENSITY = 1.24e-3  # g/mm³
@@ -73,7 +73,7 @@ class GcodeResult:
 
     def words(self) -> Iterator[str | MoveWords]:
         """The file as raw lines and numeric move blocks (for
-        :func:`slicer.gcode_reader.parse_words`)."""
+        :func:`slicer.gcode.reader.parse_words`)."""
         if self.program is None:
             yield from self.lines
             return
@@ -377,7 +377,7 @@ class Draft:
         return {k: round(z, 3) for k, (text, z) in used.items() if "safe_z" in text}
 
     def words(self) -> Iterator[str | MoveWords]:
-        """Raw lines and numeric move blocks (for :func:`slicer.gcode_reader.parse_words`),
+        """Raw lines and numeric move blocks (for :func:`slicer.gcode.reader.parse_words`),
         with a zero estimate."""
         yield from header_lines(self.settings, self.machine, self.plan.placement,
                                 Estimate(0.0, 0.0, 0.0))

@@ -1,0 +1,43 @@
+"""G-code: a print plan written as joint-space G-code, and read back.
+
+* :mod:`~slicer.gcode.writer`: :func:`draft` and :func:`write_gcode`, a
+  :class:`~slicer.plan.PrintPlan` as self-describing G-code (headers, markers, moves);
+  :class:`MachineSetup`, what the writer knows of the machine.
+* :mod:`~slicer.gcode.transitions`: the moves between sub-parts (lift, rotate, travel,
+  approach) clear of the part and the platform.
+* :mod:`~slicer.gcode.extrusions`: every path as one run of vertices, with its filament and
+  joint poses.
+* :mod:`~slicer.gcode.program`: a program under construction (comment lines and numeric move
+  blocks); :mod:`~slicer.gcode.format`: move lines as text, the whole file at once.
+* :mod:`~slicer.gcode.estimate`: filament and time of the moves.
+* :mod:`~slicer.gcode.reader`: :func:`read_gcode`, a file's moves as arrays with its headers
+  and markers (what the replay check reads).
+
+The other stages import what they need from here, not from the modules.
+"""
+
+from __future__ import annotations
+
+from slicer.gcode.program import E
+from slicer.gcode.reader import (
+    GcodeFormatError,
+    ParsedGcode,
+    parse_lines,
+    parse_words,
+    read_gcode,
+)
+from slicer.gcode.writer import Draft, GcodeError, MachineSetup, draft, write_gcode
+
+__all__ = [
+    "Draft",
+    "E",
+    "GcodeError",
+    "GcodeFormatError",
+    "MachineSetup",
+    "ParsedGcode",
+    "draft",
+    "parse_lines",
+    "parse_words",
+    "read_gcode",
+    "write_gcode",
+]
