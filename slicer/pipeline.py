@@ -27,9 +27,14 @@ from slicer.gcode import Draft, E, MachineSetup, draft, parse_words
 from slicer.hugepages import small_pages
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
-from slicer.replay import model_index, overhang_text, replay_check
-from slicer.replay_coverage import shell_depth, shell_grid
-from slicer.replay_geometry import ModelIndex
+from slicer.replay import (
+    ModelIndex,
+    model_index,
+    overhang_text,
+    replay_check,
+    shell_depth,
+    shell_grid,
+)
 from slicer.settings import ProcessSettings
 
 if TYPE_CHECKING:
@@ -49,7 +54,7 @@ class CollisionError(SliceError):
 
 class OverhangError(SliceError):
     """The replay found a layer printed in the air (over both of
-    :data:`~slicer.replay_support.OVERHANG_SHARE` and ``OVERHANG_RUN``): the file is
+    :data:`~slicer.replay.support.OVERHANG_SHARE` and ``OVERHANG_RUN``): the file is
     refused."""
 
 
@@ -67,7 +72,7 @@ class SliceResult:
     estimate : dict
         ``;HOSTD_ESTIMATE`` payload (filament_mm, mass_g, time_s, per sub-part).
     replay : dict
-        :class:`~slicer.replay.ReplayReport` as a dict.
+        :class:`~slicer.replay.check.ReplayReport` as a dict.
     transitions : list of dict
     timings : dict of str to float
         Seconds per stage.

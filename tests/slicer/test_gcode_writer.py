@@ -17,7 +17,7 @@ from slicer.gcode.format import DECIMALS, format_moves, format_moves_reference
 from slicer.gcode.reader import parse_lines, parse_words
 from slicer.gcode.writer import MachineSetup, draft, generate, path_extrusion
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
-from slicer.replay import part_frame_path
+from slicer.replay.check import part_frame_path
 from slicer.settings import ProcessSettings
 
 GEO = MachineGeometry()

@@ -9,16 +9,17 @@ import pytest
 from handmade_plans import H, box_plan, frame, prism_layers, prism_mesh, two_part_plan
 
 from kinematics.machine import MachineGeometry
-from slicer import replay, replay_collide
 from slicer.gcode.reader import GcodeFormatError, parse_lines
 from slicer.gcode.writer import MachineSetup, generate
 from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.plan import PrintPlan, SubpartPlan
-from slicer.replay import model_index, replay_check
-from slicer.replay_coverage import shell_depth, shell_grid
-from slicer.replay_geometry import ModelIndex
-from slicer.replay_samples import geometry_from_header, move_lengths
-from slicer.replay_support import strict_support
+from slicer.replay import check as replay
+from slicer.replay import collide as replay_collide
+from slicer.replay.check import model_index, replay_check
+from slicer.replay.coverage import shell_depth, shell_grid
+from slicer.replay.geometry import ModelIndex
+from slicer.replay.samples import geometry_from_header, move_lengths
+from slicer.replay.support import strict_support
 from slicer.settings import ProcessSettings
 
 GEO = MachineGeometry()

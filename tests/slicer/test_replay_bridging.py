@@ -4,7 +4,7 @@ QA finding 3: a plain solid cylinder was refused as "printed in the air" at line
 0.55 mm (0.65 mm refused): its first top skin, within 0.75 w of the top surface, counted as
 a wall, and walls could not bridge the sparse infill beneath. A sample the support rule
 finds unsupported now bridges when its bead's footprint lies over the previous layer's
-outline (``slicer.replay_support.OUTLINE_DEPTH``, ``FOOTPRINT``) and a bead of that layer
+outline (``slicer.replay.support.OUTLINE_DEPTH``, ``FOOTPRINT``) and a bead of that layer
 lies within ``bridge_reach``, however near the part's top.
 
 The hand-made boxes below are printed on the platform as planned (no placement), so the
@@ -23,16 +23,16 @@ from shared_models import MODELS
 
 from kinematics.machine import MachineGeometry
 from kinematics.orient import solve_orientation
-from slicer import replay
 from slicer.gcode.reader import parse_lines
 from slicer.gcode.writer import MachineSetup, generate
 from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.pipeline import slice_model
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
 from slicer.printhead import Printhead
-from slicer.replay import replay_check
-from slicer.replay_samples import Samples, geometry_from_header, move_lengths
-from slicer.replay_support import (
+from slicer.replay import check as replay
+from slicer.replay.check import replay_check
+from slicer.replay.samples import Samples, geometry_from_header, move_lengths
+from slicer.replay.support import (
     OVERHANG_RUN,
     OVERHANG_SHARE,
     WALL_SLACK,

@@ -8,20 +8,18 @@ import pytest
 from handmade_plans import H, box_plan, prism_mesh, two_part_plan
 
 from kinematics.machine import MachineGeometry
-from slicer import (
-    replay,
-    replay_collide,
-    replay_columns,
-    replay_geometry,
-    replay_samples,
-    replay_support,
-)
 from slicer.gcode.reader import parse_lines
 from slicer.gcode.writer import MachineSetup, generate
 from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.paths.layers import SlicingError
-from slicer.replay import ReplayBudgetError, memory_estimate, model_index, replay_check
-from slicer.replay_samples import (
+from slicer.replay import check as replay
+from slicer.replay import collide as replay_collide
+from slicer.replay import columns as replay_columns
+from slicer.replay import geometry as replay_geometry
+from slicer.replay import samples as replay_samples
+from slicer.replay import support as replay_support
+from slicer.replay.check import ReplayBudgetError, memory_estimate, model_index, replay_check
+from slicer.replay.samples import (
     extruding_moves,
     geometry_from_header,
     map_and_sample,

@@ -20,8 +20,8 @@ from slicer.gcode.writer import MachineSetup, generate
 from slicer.mesh.samples import to_manifold, to_trimesh
 from slicer.pipeline import OverhangError, overhang_message, slice_model
 from slicer.printhead import Printhead
-from slicer.replay import replay_check
-from slicer.replay_support import OVERHANG_RUN, OVERHANG_SHARE
+from slicer.replay.check import replay_check
+from slicer.replay.support import OVERHANG_RUN, OVERHANG_SHARE
 from slicer.settings import ProcessSettings
 
 GEO = MachineGeometry()

@@ -13,8 +13,8 @@ from slicer.gcode.reader import parse_lines
 from slicer.mesh.samples import branched_pipe, pipe2, pipe3
 from slicer.pipeline import slice_model
 from slicer.printhead import Printhead
-from slicer.replay import part_frame_path, replay_file
-from slicer.replay_support import OVERHANG_RUN, OVERHANG_SHARE
+from slicer.replay.check import part_frame_path, replay_file
+from slicer.replay.support import OVERHANG_RUN, OVERHANG_SHARE
 from slicer.settings import ProcessSettings
 
 pytestmark = pytest.mark.slow

@@ -12,8 +12,8 @@ from slicer.gcode.reader import parse_lines
 from slicer.mesh.samples import to_trimesh
 from slicer.pipeline import OverhangError, slice_model
 from slicer.printhead import Printhead
-from slicer.replay import replay_check
-from slicer.replay_support import THIN_LAYER
+from slicer.replay.check import replay_check
+from slicer.replay.support import THIN_LAYER
 from slicer.settings import ProcessSettings
 
 GEO = MachineGeometry()

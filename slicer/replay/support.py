@@ -16,7 +16,7 @@ along a path adds no offset. The same rule is applied to every point; wall point
 
 A point that fails the rule but lies over the previous layer's outline (its bead's footprint,
 ``FOOTPRINT`` widths around it across its axis, inside the model ``OUTLINE_DEPTH`` bead
-heights beneath it: ``slicer.replay``), with material of the previous layer within
+heights beneath it: ``slicer.replay.check``), with material of the previous layer within
 :func:`bridge_reach` (half the sparse infill spacing w / density, plus one line width)
 beneath it, *bridges over sparse infill*: reported apart, and not counted as an overhang.
 """
@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from slicer.replay_kdtree import point_tree
-from slicer.replay_samples import Samples
+from slicer.replay.kdtree import point_tree
+from slicer.replay.samples import Samples
 
 DEPTH_FACTOR = 1.5
 THIN_LAYER = 0.4  # x line width: thinner layers, the cone one layer down misses w/2

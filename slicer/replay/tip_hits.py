@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from slicer.replay_samples import Samples
+from slicer.replay.samples import Samples
 
 BALL_BATCH = 256  # tips per ball query (bounds the candidate lists held at once)
 

@@ -24,9 +24,9 @@ import numpy as np
 
 from slicer.gcode import ParsedGcode
 from slicer.printhead import Printhead
-from slicer.replay_kdtree import point_tree
-from slicer.replay_samples import Samples
-from slicer.replay_tip_hits import HeadPart, ball_hits, earliest_hits
+from slicer.replay.kdtree import point_tree
+from slicer.replay.samples import Samples
+from slicer.replay.tip_hits import HeadPart, ball_hits, earliest_hits
 
 PLATFORM_TOL = 1e-3  # mm below z = 0 that still counts as touching, not entering
 MAX_REPORTS = 20
@@ -222,7 +222,7 @@ def _material_hits(tips: Samples, rep_beads: np.ndarray, rep_move: np.ndarray,
 
     Tips sharing their axis with more than ``SMALL_GROUP`` others are checked by axis group
     (:func:`_group_hits`, whose set-up costs a pass over the beads), the others by a ball
-    query each (:func:`~slicer.replay_tip_hits.ball_hits`).
+    query each (:func:`~slicer.replay.tip_hits.ball_hits`).
     """
     hits: list[tuple[int, int]] = []
     if len(tips) == 0:

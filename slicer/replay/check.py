@@ -36,11 +36,11 @@ from kinematics.machine import MachineGeometry
 from slicer.gcode import GcodeFormatError, ParsedGcode, read_gcode
 from slicer.paths import SlicingError
 from slicer.printhead import Printhead, Segment
-from slicer.replay_collide import find_collisions
-from slicer.replay_coverage import coverage
-from slicer.replay_geometry import ModelIndex
-from slicer.replay_kdtree import point_tree
-from slicer.replay_samples import (
+from slicer.replay.collide import find_collisions
+from slicer.replay.coverage import coverage
+from slicer.replay.geometry import ModelIndex
+from slicer.replay.kdtree import point_tree
+from slicer.replay.samples import (
     Samples,
     extruding_moves,
     geometry_from_header,
@@ -49,8 +49,8 @@ from slicer.replay_samples import (
     positioned_moves,
     sample_count,
 )
-from slicer.replay_stages import Stages
-from slicer.replay_support import (
+from slicer.replay.stages import Stages
+from slicer.replay.support import (
     FOOTPRINT,
     OUTLINE_DEPTH,
     WALL_SLACK,
@@ -368,7 +368,7 @@ def _wall(model: ModelIndex, points: np.ndarray, line_width: float
 def _head_samples(parsed: ParsedGcode, geo: MachineGeometry,
                   lengths: tuple[np.ndarray, np.ndarray], bead_area: float
                   ) -> tuple[Samples, Samples]:
-    """The head sampled along every move for :func:`~slicer.replay_collide.find_collisions`:
+    """The head sampled along every move for :func:`~slicer.replay.collide.find_collisions`:
     (near samples for the nozzle, far ones for the carriage)."""
     moves = positioned_moves(parsed, lengths)
     near, far = (map_and_sample(parsed, geo, moves, lengths, bead_area, spacing, TIP_ANGLE,
@@ -386,7 +386,7 @@ def judged_samples(n: int) -> np.ndarray:
 def _bridging(model: ModelIndex, s: Samples, ok: np.ndarray, layer_height: float,
               line_width: float, infill_density: float) -> np.ndarray:
     """Which judged samples (``ok`` is theirs) are unsupported over the previous layer's
-    outline and bridge sparse infill (:func:`~slicer.replay_support.bridged`), (m,) bool.
+    outline and bridge sparse infill (:func:`~slicer.replay.support.bridged`), (m,) bool.
 
     Over the outline: the bead's footprint at the previous layer's mid-height beneath the
     sample (``OUTLINE_DEPTH`` bead heights down its axis), its centre and the points

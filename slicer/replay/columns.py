@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from slicer.replay_unique import sorted_unique
+from slicer.replay.unique import sorted_unique
 
 CHUNK_CROSSINGS = 1 << 18  # crossings computed at once when the grid is built
 _JITTER = np.array([1.234567e-7, 2.345678e-7])  # moves grid lines off axis-aligned edges

@@ -6,7 +6,7 @@
   ``cover = SURFACE_COVER`` of one. The nearest sample bounds a point's distance d to the
   surface: ``d0 − cover ≤ d ≤ d0``. Only points whose bound straddles a threshold are
   resolved exactly, against the triangles of the samples within ``threshold + cover``;
-* a :class:`~slicer.replay_columns.ColumnGrid` of vertical lines at ``inside_pitch``: a
+* a :class:`~slicer.replay.columns.ColumnGrid` of vertical lines at ``inside_pitch``: a
   point farther than ``inside_pitch / √2`` from the surface is inside exactly when the line
   through its nearest node crosses the mesh an odd number of times above it;
 * the mesh as a ``manifold3d`` solid, whose ray cast decides the few points closer than that.
@@ -19,9 +19,9 @@ import math
 import manifold3d as m3
 import numpy as np
 
-from slicer.replay_columns import ColumnGrid
-from slicer.replay_kdtree import point_tree
-from slicer.replay_unique import sorted_unique
+from slicer.replay.columns import ColumnGrid
+from slicer.replay.kdtree import point_tree
+from slicer.replay.unique import sorted_unique
 
 SURFACE_COVER = 0.15  # mm: every surface point lies this close to a surface sample
 SURFACE_LEAF = 32  # surface samples per KD-tree leaf (faster than 16 on the wall queries)

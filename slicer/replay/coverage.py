@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from slicer.replay_columns import volume_grid
-from slicer.replay_geometry import ModelIndex
-from slicer.replay_kdtree import point_tree
-from slicer.replay_samples import Samples
+from slicer.replay.columns import volume_grid
+from slicer.replay.geometry import ModelIndex
+from slicer.replay.kdtree import point_tree
+from slicer.replay.samples import Samples
 
 MAX_GRID = 60_000
 MIN_PITCH = 0.3

@@ -1,0 +1,41 @@
+"""Replay check: a G-code file mapped back onto the part, and what it would build judged.
+
+* :mod:`~slicer.replay.check`: :func:`replay_check` and :func:`replay_file`, the whole
+  check and its :class:`ReplayReport`; :func:`model_index`, the model's queries built once.
+* :mod:`~slicer.replay.samples`: the file's moves as platform-frame samples (beads, nozzle
+  tips), from its own ``;HOSTD_KINEMATICS`` header.
+* :mod:`~slicer.replay.support`: which beads rest on earlier material, and the layers printed
+  in the air; :mod:`~slicer.replay.coverage`: how much of the part the beads fill.
+* :mod:`~slicer.replay.collide` and :mod:`~slicer.replay.tip_hits`: head collisions with
+  material printed before and with the platform.
+* :mod:`~slicer.replay.geometry`: distance to the surface and inside test of the model;
+  :mod:`~slicer.replay.columns`: a closed mesh crossed by vertical lines.
+* :mod:`~slicer.replay.stages`: the check's stages, in order or on a small thread pool;
+  :mod:`~slicer.replay.kdtree` and :mod:`~slicer.replay.unique`: the KD-trees and sorted
+  distinct values they share.
+
+The other stages import what they need from here, not from the modules.
+"""
+
+from __future__ import annotations
+
+from slicer.replay.check import (
+    ReplayReport,
+    model_index,
+    overhang_text,
+    replay_check,
+    worst_layer_text,
+)
+from slicer.replay.coverage import shell_depth, shell_grid
+from slicer.replay.geometry import ModelIndex
+
+__all__ = [
+    "ModelIndex",
+    "ReplayReport",
+    "model_index",
+    "overhang_text",
+    "replay_check",
+    "shell_depth",
+    "shell_grid",
+    "worst_layer_text",
+]
