@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         write_decomposition(dec, out)
         if not args.no_preview:
-            from slicer.preview_decomposition import render_preview
+            from slicer.preview import render_preview
             render_preview(dec, out / "preview.png")
     except OSError as exc:
         raise CliError(f"{out}: cannot write: {exc.strerror or exc}") from None

@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         write_gcode(out, result.lines)
         if args.preview:
-            from slicer.preview_toolpaths import render_toolpaths
+            from slicer.preview import render_toolpaths
             render_toolpaths(result.plan, args.preview)
     except OSError as exc:
         raise CliError(f"cannot write: {exc.filename or out}: {exc.strerror or exc}",
