@@ -17,12 +17,12 @@ printed, one line naming the file) so that callers report it as bad input.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from slicer.gcode.markers import LAYER, TRANSITION, parse_marker, parse_payload
 from slicer.mesh import MeshError
 
 AXES = "XYZ"
@@ -167,11 +167,12 @@ def place_of(row: int, at: ArrayLike, texts: list[str]) -> str:
     """
     before = int(np.searchsorted(np.asarray(at), row, side="right"))
     for text in reversed(texts[:before]):
-        if text.startswith(";HOSTD_LAYER "):
-            layer = json.loads(text.split(" ", 1)[1])
+        name, payload = parse_marker(text) or ("", "")
+        if name == LAYER:
+            layer = parse_payload(payload)
             return f"sub-part {layer['subpart']}, layer {layer['index']}"
-        if text.startswith(";HOSTD_TRANSITION "):
-            return f"transition to sub-part {json.loads(text.split(' ', 1)[1])['to']}"
+        if name == TRANSITION:
+            return f"transition to sub-part {parse_payload(payload)['to']}"
     return "start"
 
 

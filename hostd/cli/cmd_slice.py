@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import time
 from pathlib import Path
@@ -141,9 +140,12 @@ def _summary(r: Any, out: Path, seconds: float) -> None:
 
 def _turned_degrees(lines: list[str]) -> float:
     """How far the placement (the ``;HOSTD_PLACEMENT`` header) tilted the file's Z axis."""
+    from slicer.gcode.markers import PLACEMENT, parse_marker, parse_payload
+
     for line in lines[:8]:
-        if line.startswith(";HOSTD_PLACEMENT "):
-            zz = float(json.loads(line.split(" ", 1)[1])["matrix"][2][2])
+        name, payload = parse_marker(line) or ("", "")
+        if name == PLACEMENT:
+            zz = float(parse_payload(payload)["matrix"][2][2])
             return math.degrees(math.acos(max(-1.0, min(1.0, zz))))
     return 0.0
 

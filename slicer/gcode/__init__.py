@@ -3,6 +3,9 @@
 * :mod:`~slicer.gcode.writer`: :func:`draft` and :func:`write_gcode`, a
   :class:`~slicer.plan.PrintPlan` as self-describing G-code (headers, markers, moves);
   :class:`MachineSetup`, what the writer knows of the machine.
+* :mod:`~slicer.gcode.markers`: the ``;HOSTD_`` markers (names, payloads, their lines made
+  and parsed) and the words of a command, for the writer, both readers (this package's and
+  ``hostd.printer.program``) and the firmware emulator. No numpy.
 * :mod:`~slicer.gcode.transitions`: the moves between sub-parts (lift, rotate, travel,
   approach) clear of the part and the platform.
 * :mod:`~slicer.gcode.extrusions`: every path as one run of vertices, with its filament and
@@ -13,20 +16,26 @@
 * :mod:`~slicer.gcode.reader`: :func:`read_gcode`, a file's moves as arrays with its headers
   and markers (what the replay check reads).
 
-The other stages import what they need from here, not from the modules.
+The other stages import what they need from here, not from the modules. Each name is
+imported from its module when first asked for (``__getattr__``), so that importing
+:mod:`slicer.gcode.markers`, which the daemon does, loads no numpy.
 """
 
 from __future__ import annotations
 
-from slicer.gcode.program import E
-from slicer.gcode.reader import (
-    GcodeFormatError,
-    ParsedGcode,
-    parse_lines,
-    parse_words,
-    read_gcode,
-)
-from slicer.gcode.writer import Draft, GcodeError, MachineSetup, draft, write_gcode
+from importlib import import_module
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from slicer.gcode.program import E
+    from slicer.gcode.reader import (
+        GcodeFormatError,
+        ParsedGcode,
+        parse_lines,
+        parse_words,
+        read_gcode,
+    )
+    from slicer.gcode.writer import Draft, GcodeError, MachineSetup, draft, write_gcode
 
 __all__ = [
     "Draft",
@@ -41,3 +50,20 @@ __all__ = [
     "read_gcode",
     "write_gcode",
 ]
+
+_HOMES = {
+    "program": ("E",),
+    "reader": ("GcodeFormatError", "ParsedGcode", "parse_lines", "parse_words", "read_gcode"),
+    "writer": ("Draft", "GcodeError", "MachineSetup", "draft", "write_gcode"),
+}
+"""The module of every name above (the imports for type checkers say the same)."""
+_MODULE_OF = {name: module for module, names in _HOMES.items() for name in names}
+
+
+def __getattr__(name: str) -> Any:
+    module = _MODULE_OF.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value  # asked once
+    return value

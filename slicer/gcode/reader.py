@@ -1,24 +1,34 @@
 """Read hostd G-code (or any G0/G1 file in G90 with M82/M83) into move arrays and headers.
 
 Every ``G0``/``G1`` becomes one row with the pose it starts from and ends at; ``;HOSTD_*``
-comment lines become headers (``KINEMATICS``, ``PROCESS``, ``PLACEMENT``, ``ESTIMATE``) and
-markers that tag the following moves with their sub-part, layer and transition. Anything the
-reader cannot interpret raises :class:`GcodeFormatError` naming the line.
+comment lines (:mod:`slicer.gcode.markers`) become headers (``KINEMATICS``, ``PROCESS``,
+``PLACEMENT``, ``ESTIMATE``) and markers that tag the following moves with their sub-part,
+layer and transition. Anything the reader cannot interpret raises :class:`GcodeFormatError`
+naming the line.
 """
 
 from __future__ import annotations
 
-import json
-import re
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from slicer.gcode.markers import (
+    HEADERS,
+    INTERFACE,
+    LAYER,
+    SUBPART,
+    TRANSITION,
+    TRANSITION_END,
+    PayloadError,
+    parse_marker,
+    parse_payload,
+    split_words,
+)
+
 AXES = "XYZAC"
-HEADERS = ("KINEMATICS", "PROCESS", "PLACEMENT", "ESTIMATE")
-_MARKER = re.compile(r";HOSTD_([A-Z_]+)\s*(.*)$")
 
 
 class GcodeFormatError(ValueError):
@@ -120,28 +130,27 @@ _COLUMN = {"X": 0, "Y": 1, "Z": 2, "A": 3, "C": 4, "F": 5, "E": 6}
 _MOVES = {"G0": 0, "G00": 0, "G1": 1, "G01": 1}
 
 
-def _words(body: str, n: int) -> dict[str, float]:
+def _words(words: list[tuple[str, str]], n: int) -> dict[str, float]:
     out = {}
-    for tok in body.split()[1:]:
-        letter = tok[0].upper()
+    for letter, value in words:
         try:
-            out[letter] = float(tok[1:])
+            out[letter.upper()] = float(value)
         except ValueError:
-            raise GcodeFormatError(f"line {n}: bad word {tok!r}") from None
+            raise GcodeFormatError(f"line {n}: bad word {letter + value!r}") from None
     return out
 
 
-def _move(st: _State, tokens: list[str], g: int, n: int) -> None:
+def _move(st: _State, words: list[tuple[str, str]], g: int, n: int) -> None:
     nan = float("nan")
     row = [nan, nan, nan, nan, nan, nan, nan]
     col = _COLUMN
     try:
-        for tok in tokens:
-            k = col.get(tok[0].upper())
+        for letter, value in words:
+            k = col.get(letter.upper())
             if k is not None:
-                row[k] = float(tok[1:])
+                row[k] = float(value)
     except ValueError:
-        raise GcodeFormatError(f"line {n}: bad word {tok!r}") from None
+        raise GcodeFormatError(f"line {n}: bad word {letter + value!r}") from None
     e = row[6]
     if e != e:  # no E word
         e = 0.0
@@ -154,11 +163,11 @@ def _move(st: _State, tokens: list[str], g: int, n: int) -> None:
 
 
 def _command(st: _State, body: str, n: int) -> None:
-    tokens = body.split()
-    head = tokens[0].upper()
+    head, words = split_words(body)
+    head = head.upper()
     g = _MOVES.get(head)
     if g is not None:
-        _move(st, tokens[1:], g, n)
+        _move(st, words, g, n)
     elif head == "G91":
         raise GcodeFormatError(f"line {n}: G91 relative positioning is not supported")
     elif head in ("M82", "G90"):  # Marlin 2: G90 makes E absolute as well (after M83 too)
@@ -166,11 +175,11 @@ def _command(st: _State, body: str, n: int) -> None:
     elif head == "M83":
         st.rel_e = True
     elif head == "G92":
-        words = _words(body, n)
-        if set(words) - {"E"}:
-            raise GcodeFormatError(f"line {n}: G92 of {''.join(sorted(set(words) - {'E'}))} "
+        values = _words(words, n)
+        if set(values) - {"E"}:
+            raise GcodeFormatError(f"line {n}: G92 of {''.join(sorted(set(values) - {'E'}))} "
                                    "is not supported (only E)")
-        st.e_abs = words.get("E", 0.0)
+        st.e_abs = values.get("E", 0.0)
     elif head == "G28":
         st.vals.append([float("nan")] * 6)
         st.home.append(True)
@@ -178,14 +187,10 @@ def _command(st: _State, body: str, n: int) -> None:
 
 
 def _marker(st: _State, name: str, payload: str, n: int) -> None:
-    data: dict = {}
-    if payload:
-        try:
-            data = json.loads(payload)
-        except json.JSONDecodeError as exc:
-            raise GcodeFormatError(f"line {n}: ;HOSTD_{name}: bad JSON: {exc.msg}") from None
-        if not isinstance(data, dict):
-            raise GcodeFormatError(f"line {n}: ;HOSTD_{name}: expected a JSON object")
+    try:
+        data = parse_payload(payload)
+    except PayloadError as exc:
+        raise GcodeFormatError(f"line {n}: ;HOSTD_{name}: {exc}") from None
     try:
         _apply_marker(st, name, data, st.n_moves())
     except (KeyError, TypeError, ValueError) as exc:
@@ -195,19 +200,19 @@ def _marker(st: _State, name: str, payload: str, n: int) -> None:
 def _apply_marker(st: _State, name: str, data: dict, n_moves: int) -> None:
     if name in HEADERS:
         st.headers[name] = data
-    elif name == "SUBPART":
+    elif name == SUBPART:
         st.sub, st.lay = int(data["index"]), -1
         parent = data.get("parent")
         st.parents[st.sub] = None if parent is None else int(parent)
-    elif name == "LAYER":
+    elif name == LAYER:
         st.sub, st.lay = int(data["subpart"]), int(data["index"])
         st.seq += 1
-    elif name == "INTERFACE":
+    elif name == INTERFACE:
         st.interfaces.append({**data, "layer_seq": st.seq})
-    elif name == "TRANSITION":
+    elif name == TRANSITION:
         st.trans = True
         st.transitions.append({**data, "first": n_moves, "last": n_moves - 1})
-    elif name == "TRANSITION_END":
+    elif name == TRANSITION_END:
         st.trans = False
         if st.transitions:
             st.transitions[-1]["last"] = n_moves - 1
@@ -228,9 +233,9 @@ def _line(st: _State, raw: str, n: int) -> None:
     if not text:
         return
     if text[0] == ";":
-        m = _MARKER.match(text)
-        if m:
-            _marker(st, m.group(1), m.group(2).strip(), n)
+        marker = parse_marker(text)
+        if marker is not None:
+            _marker(st, *marker, n)
         return
     body = text.split(";", 1)[0].strip()
     if body:

@@ -11,7 +11,6 @@ Extrusion of a segment of length L between vertices of local thickness h0, h1 is
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field
@@ -25,6 +24,23 @@ from kinematics.transform import inverse, table_rotation
 from slicer.envelope import DEFAULT_TRAVEL
 from slicer.gcode.estimate import Estimate, MotionLimits, estimate_program
 from slicer.gcode.extrusions import Extrusions, joint_poses
+from slicer.gcode.markers import (
+    ESTIMATE,
+    INTERFACE,
+    KINEMATICS,
+    LAYER,
+    PLACEMENT,
+    PROCESS,
+    SUBPART,
+    TRANSITION,
+    TRANSITION_END,
+    InterfacePayload,
+    LayerPayload,
+    PlacementPayload,
+    SubpartPayload,
+    TransitionPayload,
+    marker_line,
+)
 from slicer.gcode.program import AC_DECIMALS, XYZ_DECIMALS, MoveWords, Program
 from slicer.gcode.transitions import obstacle_hull, plan_transition, platform_rim, safe_height_z
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
@@ -203,10 +219,11 @@ class _Writer:
         self.prog.moves(way[1:], 0.0, self.s.travel_speed, 0)
 
     def layer(self, layer: Layer) -> None:
-        self.prog.line(f";HOSTD_LAYER {_json({'subpart': layer.subpart, 'index': layer.index})}")
+        self.prog.line(marker_line(LAYER, LayerPayload(subpart=layer.subpart,
+                                                       index=layer.index)))
         if layer.interface_child is not None:
-            self.prog.line(";HOSTD_INTERFACE " + _json(
-                {"parent": layer.subpart, "child": int(layer.interface_child)}))
+            self.prog.line(marker_line(INTERFACE, InterfacePayload(
+                parent=layer.subpart, child=int(layer.interface_child))))
         ext, j0 = self.ext, self.next_path
         self.next_path += len(layer.paths)
         for j, path in enumerate(layer.paths, start=j0):
@@ -228,7 +245,7 @@ class _Writer:
         layer0, point = first
         self.prog.subpart = sp.index
         parent = None if sp.parent is None else int(sp.parent)
-        self.prog.line(f";HOSTD_SUBPART {_json({'index': sp.index, 'parent': parent})}")
+        self.prog.line(marker_line(SUBPART, SubpartPayload(index=sp.index, parent=parent)))
         self.transition(prev, sp.index, layer0, point)
         for layer in sp.layers:
             self.layer(layer)
@@ -242,16 +259,16 @@ class _Writer:
                              self.s.safe_height, self.s.z_hop)
         x, y, z = (round(float(v), XYZ_DECIMALS) for v in tr.target[:3])
         a, c = (round(float(v), AC_DECIMALS) for v in tr.target[3:])
-        record: dict[str, object] = {"from": prev, "to": to, "a": a, "c": c, "x": x, "y": y,
+        record: TransitionPayload = {"from": prev, "to": to, "a": a, "c": c, "x": x, "y": y,
                                      "z": z, "safe_z": round(tr.safe_z, 3)}
-        self.transitions.append(record)
-        self.prog.line(f";HOSTD_TRANSITION {_json(record)}")
+        self.transitions.append(dict(record))
+        self.prog.line(marker_line(TRANSITION, record))
         for pose, rotary in zip(tr.poses, tr.rotary, strict=True):
             if rotary and _same_angles(self.prog.pose, pose[3], pose[4]):
                 continue
             feed = self.s.max_rotary_velocity if rotary else self.s.travel_speed
             self.prog.moves(pose[None, :], 0.0, feed, 0)
-        self.prog.line(";HOSTD_TRANSITION_END")
+        self.prog.line(marker_line(TRANSITION_END))
 
     def end_safe_z(self) -> float:
         """Machine Z that clears the part and the platform while the table turns from the
@@ -268,10 +285,6 @@ def start_safe_z(settings: ProcessSettings, machine: MachineSetup) -> float:
     A = C = 0 (machine Z, mm), the table surface standing in for the part not printed yet."""
     rim = platform_rim(machine.platform_radius)
     return safe_height_z(rim, rim, 0.0, 0.0, 0.0, 0.0, machine.geometry, settings.safe_height)
-
-
-def _json(obj: object) -> str:
-    return json.dumps(obj, separators=(", ", ": "))
 
 
 def _nozzle_axis(a: float, c: float) -> np.ndarray:
@@ -311,9 +324,9 @@ def header_lines(settings: ProcessSettings, machine: MachineSetup, placement: np
     proc = dict(settings.header())
     proc.update(perimeters=settings.perimeters, infill_density=settings.infill_density)
     matrix = [[float(v) for v in row] for row in np.asarray(placement, dtype=float)]
-    return [f";HOSTD_KINEMATICS {_json(kin)}", f";HOSTD_PROCESS {_json(proc)}",
-            f";HOSTD_PLACEMENT {_json({'matrix': matrix})}",
-            f";HOSTD_ESTIMATE {_json(estimate.header())}"]
+    return [marker_line(KINEMATICS, kin), marker_line(PROCESS, proc),
+            marker_line(PLACEMENT, PlacementPayload(matrix=matrix)),
+            marker_line(ESTIMATE, estimate.header())]
 
 
 def _custom(template: str, settings: ProcessSettings, **extra: float) -> str:

@@ -34,6 +34,7 @@ import trimesh
 
 from kinematics.machine import MachineGeometry
 from slicer.gcode import GcodeFormatError, ParsedGcode, read_gcode
+from slicer.gcode.markers import KINEMATICS, PLACEMENT, PROCESS
 from slicer.paths import SlicingError
 from slicer.printhead import Printhead, Segment
 from slicer.replay.collide import find_collisions
@@ -129,7 +130,7 @@ class ReplayReport:
 
 
 def _process(parsed: ParsedGcode) -> dict[str, float]:
-    proc = parsed.require("PROCESS")
+    proc = parsed.require(PROCESS)
     try:
         out = {k: float(proc[k]) for k in ("layer_height", "line_width", "filament_diameter")}
     except (KeyError, TypeError, ValueError) as exc:
@@ -141,7 +142,7 @@ def _process(parsed: ParsedGcode) -> dict[str, float]:
 
 def _placement(parsed: ParsedGcode) -> np.ndarray:
     try:
-        m = np.asarray(parsed.require("PLACEMENT")["matrix"], dtype=float)
+        m = np.asarray(parsed.require(PLACEMENT)["matrix"], dtype=float)
     except (KeyError, TypeError, ValueError) as exc:
         raise GcodeFormatError(f";HOSTD_PLACEMENT: bad matrix ({exc})") from None
     if m.shape != (4, 4) or not np.isfinite(m).all():
@@ -152,7 +153,7 @@ def _placement(parsed: ParsedGcode) -> np.ndarray:
 def _head(parsed: ParsedGcode, head: Printhead | None) -> Printhead:
     if head is not None:
         return head
-    segs = parsed.headers.get("KINEMATICS", {}).get("printhead")
+    segs = parsed.headers.get(KINEMATICS, {}).get("printhead")
     return Printhead(tuple(_segment(s) for s in segs)) if segs else Printhead()
 
 
@@ -213,7 +214,7 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     w, t = proc["line_width"], proc["layer_height"]
     head = _head(parsed, head)
     radius = platform_radius if platform_radius is not None else float(
-        parsed.headers.get("KINEMATICS", {}).get("platform_radius", 150.0))
+        parsed.headers.get(KINEMATICS, {}).get("platform_radius", 150.0))
     bead_area = math.pi * proc["filament_diameter"] ** 2 / 4.0 / w
     placement = np.eye(4) if placed else _placement(parsed)
     lengths = move_lengths(parsed)
@@ -250,7 +251,7 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     bad_layers = [_layer_name(s, k) for k in bad_wall_layers(s.seq[::JUDGE_STRIDE], wall, ok)]
     n = max(len(ok), 1)
     per_layer = layer_support(s, judged_samples(len(s)), ok | bridge, w)
-    to_part = np.linalg.inv(_placement(parsed)) if "PLACEMENT" in parsed.headers else None
+    to_part = np.linalg.inv(_placement(parsed)) if PLACEMENT in parsed.headers else None
     worst = per_layer.worst()
     worst_d = None if worst is None else _layer_dict(per_layer, worst, to_part)
     return ReplayReport(
@@ -316,7 +317,7 @@ def check_budget(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray],
     sample at once). The message says what would fit (:func:`budget_advice`)."""
     n, need = memory_estimate(parsed, lengths, line_width)
     if need + index_bytes > budget:
-        proc = parsed.headers.get("PROCESS", {})
+        proc = parsed.headers.get(PROCESS, {})
         advice = budget_advice(need, budget - index_bytes, _number(proc, "layer_height"),
                                _number(proc, "nozzle_diameter"))
         raise ReplayBudgetError(

@@ -16,6 +16,7 @@ import numpy as np
 
 from kinematics.machine import MachineGeometry
 from slicer.gcode import GcodeFormatError, ParsedGcode
+from slicer.gcode.markers import KINEMATICS
 
 CHUNK_SAMPLES = 1 << 18  # samples computed at once (their temporaries stay bounded)
 
@@ -62,7 +63,7 @@ class Samples:
 
 def geometry_from_header(parsed: ParsedGcode) -> MachineGeometry:
     """The machine geometry of ``;HOSTD_KINEMATICS``."""
-    kin = parsed.require("KINEMATICS")
+    kin = parsed.require(KINEMATICS)
     if kin.get("type") != "xyzac-trt":
         raise GcodeFormatError(f"unsupported kinematics type {kin.get('type')!r}")
     try:
