@@ -13,6 +13,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from slicer.gcode.markers import split_words
+
 AXES = ("X", "Y", "Z", "A", "C")
 JOIN_LINES = 4096  # commands joined into one text by ModalState.apply_many
 # a run of plain moves, one per line, each word a letter and a number float() reads as
@@ -22,20 +24,23 @@ _E_WORD = re.compile(r" E([^ \n]+)(?=[^E\n]*\n)")  # a move's last E word, as in
 
 
 def words(command: str) -> tuple[str, dict[str, float]]:
-    """``"G1 X1 Y-2.5"`` → ``("G1", {"X": 1.0, "Y": -2.5})``; unparsable words are skipped."""
-    parts = command.split()
-    if not parts:
+    """``"G1 X1 Y-2.5"`` → ``("G1", {"X": 1.0, "Y": -2.5})``; unparsable words are skipped
+    (the words split by :func:`slicer.gcode.markers.split_words`)."""
+    first, parts = split_words(command)
+    if not first:
         return "", {}
-    code = normal_code(parts[0])
+    code = normal_code(first)
     args: dict[str, float] = {}
-    for w in parts[1:]:
-        if len(w) >= 2 and w[0].isalpha():
+    for letter, value in parts:
+        if not letter.isalpha():
+            continue
+        if value:
             try:
-                args[w[0].upper()] = float(w[1:])
+                args[letter.upper()] = float(value)
             except ValueError:
                 continue
-        elif len(w) == 1 and w.isalpha():
-            args[w.upper()] = float("nan")  # bare axis letter (G28 X)
+        else:
+            args[letter.upper()] = float("nan")  # bare axis letter (G28 X)
     return code, args
 
 

@@ -1,14 +1,14 @@
 """A G-code file as the streamer sees it: numbered commands plus the HOSTD markers.
 
 Pure: text in, :class:`Program` out. Markers (``;HOSTD_SUBPART {json}``, ``;HOSTD_LAYER``,
-``;HOSTD_ESTIMATE``, ``;HOSTD_TRANSITION`` … ``;HOSTD_TRANSITION_END``) are attached to the
-index of the next command, so progress, checkpoints and resume points are command indices.
+``;HOSTD_ESTIMATE``, ``;HOSTD_TRANSITION`` … ``;HOSTD_TRANSITION_END``; their names, payloads
+and parsing in :mod:`slicer.gcode.markers`) are attached to the index of the next command, so
+progress, checkpoints and resume points are command indices.
 """
 
 from __future__ import annotations
 
 import bisect
-import json
 import math
 import re
 from dataclasses import dataclass, field
@@ -17,8 +17,20 @@ from typing import Any
 from hostd.link.framing import COMMAND_MAX, CONTROL, MAX_CMD_SIZE, checksum, strip_gcode
 from hostd.printer.errors import ProgramError
 from hostd.printer.modal import ModalState, normal_code
+from slicer.gcode.markers import (
+    ESTIMATE,
+    KINEMATICS,
+    LAYER,
+    PREFIX,
+    SUBPART,
+    TRANSITION,
+    TRANSITION_END,
+    PayloadError,
+    parse_marker,
+    parse_payload,
+    split_words,
+)
 
-MARK = ";HOSTD_"
 MESSAGES = frozenset({"M117", "M118", "M23", "M28", "M30", "M32", "M928"})
 """Commands whose argument is text, not numbers."""
 _SCREEN = bytes.maketrans(b"0123456789." + bytes([*range(0, 9), *range(11, 32), 127]),
@@ -145,7 +157,7 @@ def parse_program(text: str) -> Program:
     check = _needs_line_checks(text)
     for lineno, raw in enumerate(text.splitlines(), 1):
         stripped = raw.strip()
-        if stripped.startswith(MARK):
+        if stripped.startswith(PREFIX):
             open_tr, subpart = _marker(prog, stripped, lineno, open_tr, subpart)
             continue
         cmd = strip_gcode(raw)
@@ -177,9 +189,12 @@ def _check_lengths(prog: Program) -> None:
 
 def _marker(prog: Program, text: str, lineno: int, open_tr: dict[str, Any] | None,
             subpart: int) -> tuple[dict[str, Any] | None, int]:
-    name, _, payload = text[len(MARK):].partition(" ")
+    marker = parse_marker(text)
+    if marker is None:  # a comment that only starts like a marker
+        return open_tr, subpart
+    name, payload = marker
     index = len(prog.commands)
-    if name == "TRANSITION_END":
+    if name == TRANSITION_END:
         if open_tr is None:
             raise ProgramError(f"line {lineno}: HOSTD_TRANSITION_END without a start")
         prog.transitions.append(Transition(
@@ -187,19 +202,19 @@ def _marker(prog: Program, text: str, lineno: int, open_tr: dict[str, Any] | Non
             open_tr["line"], open_tr["safe_z"]))
         return None, subpart
     data = _json(payload, lineno, name)
-    if name == "SUBPART":
+    if name == SUBPART:
         subpart = _int(data, "index", lineno)
         prog.subparts.setdefault(subpart, index)
         prog.parents[subpart] = data.get("parent")
-    elif name == "LAYER":
+    elif name == LAYER:
         subpart = _int(data, "subpart", lineno) if "subpart" in data else subpart
         prog.layers.append(LayerMark(index, subpart, _int(data, "index", lineno)))
-    elif name == "KINEMATICS":
+    elif name == KINEMATICS:
         prog.kinematics = data
-    elif name == "ESTIMATE":
+    elif name == ESTIMATE:
         prog.estimate = {k: float(v) for k, v in data.items()
                          if isinstance(v, int | float) and math.isfinite(v)}
-    elif name == "TRANSITION":
+    elif name == TRANSITION:
         if open_tr is not None:
             raise ProgramError(f"line {lineno}: nested HOSTD_TRANSITION")
         target = {k.upper(): _number(data, k, lineno) for k in ("x", "y", "z", "a", "c", "X",
@@ -211,16 +226,10 @@ def _marker(prog: Program, text: str, lineno: int, open_tr: dict[str, Any] | Non
 
 
 def _json(payload: str, lineno: int, name: str) -> dict[str, Any]:
-    payload = payload.strip()
-    if not payload:
-        return {}
     try:
-        data = json.loads(payload)
-    except ValueError:
-        raise ProgramError(f"line {lineno}: HOSTD_{name}: bad JSON") from None
-    if not isinstance(data, dict):
-        raise ProgramError(f"line {lineno}: HOSTD_{name}: expected a JSON object")
-    return data
+        return parse_payload(payload)
+    except PayloadError as exc:
+        raise ProgramError(f"line {lineno}: HOSTD_{name}: {exc.reason}") from None
 
 
 def _number(data: dict[str, Any], key: str, lineno: int) -> float:
@@ -301,19 +310,19 @@ def check_command(cmd: str, lineno: int) -> None:
     if not _COMMAND.match(cmd):  # a text file, or a word the firmware does not know
         raise ProgramError(f"line {lineno}: {cmd.split()[0][:20]!r} is not a G-code "
                            "command (a G, M or T code and its number)")
-    words = cmd.split()
-    if (why := RESERVED.get(_leading_code(words[0]))) is not None:
-        raise ProgramError(f"line {lineno}: {words[0]} is not allowed in a job or raw G-code "
+    code, words = split_words(cmd)
+    if (why := RESERVED.get(_leading_code(code))) is not None:
+        raise ProgramError(f"line {lineno}: {code} is not allowed in a job or raw G-code "
                            f"({why})")
-    if words[0].upper() in MESSAGES:
+    if code.upper() in MESSAGES:
         return
-    for word in words[1:]:
+    for letter, text in words:
         try:
-            value = float(word[1:])
+            value = float(text)
         except ValueError:
             continue  # not a number (a file name, a flag): the firmware's to judge
         if not math.isfinite(value):
-            raise ProgramError(f"line {lineno}: {word} is not a finite number")
+            raise ProgramError(f"line {lineno}: {letter}{text} is not a finite number")
 
 
 def _int(data: dict[str, Any], key: str, lineno: int) -> int:

@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import math
 import re
+import string
 from dataclasses import dataclass, field
 
 from hostd.sim.heaters import Heater
 from hostd.sim.planner import Planner
 from hostd.sim.settings import SimSettings
+from slicer.gcode.markers import split_words
 
 AXES = ("X", "Y", "Z", "A", "C")
 LINEAR = ("X", "Y", "Z")
@@ -24,7 +26,8 @@ ROTARY_SPEED = 90.0  # degrees per second
 HOME_SECONDS = 2.0
 FIRMWARE_NAME = "Marlin 2.1.2-hostd-sim"
 CAPABILITIES = ("AUTOREPORT_TEMP", "EMERGENCY_PARSER", "AUTOREPORT_POS", "EXTENDED_M20")
-_WORD = re.compile(r"([A-Z])\s*([-+]?\d*\.?\d*)")
+_LETTERS = frozenset(string.ascii_uppercase)
+_NUMBER = re.compile(r"[-+]?\d*\.?\d*")  # what a parameter's value is read as
 
 
 @dataclass
@@ -39,14 +42,17 @@ class Command:
     words: dict[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        head, _, rest = self.text.partition(" ")
-        self.code = head.upper()
+        self.code = self.text.partition(" ")[0].upper()
         if self.code in ("M117", "M118"):
             return
-        for letter, value in _WORD.findall(rest.upper()):
+        for letter, text in split_words(self.text)[1]:
+            key = letter.upper()
+            number = _NUMBER.match(text)  # the number the word starts with (always a match)
+            if key not in _LETTERS or number is None:
+                continue
             try:
-                self.words[letter] = float(value) if value else 0.0
-            except ValueError:
+                self.words[key] = float(number[0]) if number[0] else 0.0
+            except ValueError:  # a sign or a point alone
                 continue
 
 
