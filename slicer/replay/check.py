@@ -7,11 +7,11 @@ bead is material (for support beneath later points and for coverage), and every 
 sample, one line width apart along a path, is *judged*. Reported (all shares in [0, 1]):
 
 * ``inside``: judged samples inside the model (or within 0.1 w of its surface);
-* ``coverage`` / ``shell_coverage``: model volume reached by the beads (:mod:`.replay_coverage`);
+* ``coverage`` / ``shell_coverage``: model volume reached by the beads (:mod:`.coverage`);
 * ``supported``: judged samples with support beneath them or bridging sparse infill, and the
-  wall figures of the strict rule (:mod:`.replay_support`);
+  wall figures of the strict rule (:mod:`.support`);
 * ``collisions``: head samples that hit printed material or the platform
-  (:mod:`.replay_collide`).
+  (:mod:`.collide`).
 
 Judging every sample gave the same figures to within 0.02 percentage points on the sample
 pipes and the 50k-face pipe, five-axis and planar, and the same unsupported wall layers
@@ -202,7 +202,7 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     ``mesh`` is in STL coordinates (moved by the file's placement), or already in the
     platform frame with ``placed``. ``head`` and ``platform_radius`` default to the file's
     ``;HOSTD_KINEMATICS`` values. With ``threads`` ≥ 2 the stages run on that many threads
-    as their inputs allow (:mod:`.replay_stages`); the figures are the same. ``index`` is
+    as their inputs allow (:mod:`.stages`); the figures are the same. ``index`` is
     :func:`model_index` of the placed ``mesh`` at the file's line width, when already built.
 
     Raises :class:`ReplayBudgetError` before any sample is taken when the check would need

@@ -10,7 +10,7 @@ dips below the platform plane (z = 0) within the platform radius.
 Tips are grouped by nozzle axis; in each group only material above the lowest tip and below
 the highest tip plus the head height can matter, which is usually none. Tips of moves that
 turn the table each have an axis of their own: those are checked one by one against the beads
-in a ball around the head (:mod:`.replay_tip_hits`). A colliding tip reports the earliest bead
+in a ball around the head (:mod:`.tip_hits`). A colliding tip reports the earliest bead
 it hits.
 """
 

@@ -164,7 +164,7 @@ class ModelIndex:
         self._columns = ColumnGrid.build(self.tris, inside_pitch)
         self._mesh = (vertices, faces)
         self._solid_cache: list[m3.Manifold | None] = []
-        # the coverage grid and its shell mask per shell depth (.replay_coverage.shell_grid)
+        # the coverage grid and its shell mask per shell depth (.coverage.shell_grid)
         self.grids: dict[float, tuple[np.ndarray, np.ndarray]] = {}
 
     def nearest_bound(self, points: np.ndarray, cap: float) -> np.ndarray:
