@@ -30,9 +30,9 @@ from hostd import __version__
 from hostd.config import Config
 from hostd.config.placeholders import process_values
 from hostd.control.endpoints import build_registry
-from hostd.control.events import EventBus
-from hostd.control.rpc import PrinterBusy
 from hostd.control.server import ControlError, ControlServer
+from hostd.errors import PrinterBusy
+from hostd.events import EventBus
 from hostd.jobs.manager import JobManager
 from hostd.jobs.spool import Spool
 from hostd.jobs.store import JobStore, StoreError

@@ -11,16 +11,11 @@ import asyncio
 from typing import TYPE_CHECKING, Any
 
 from hostd import __version__
-from hostd.control.rpc import (
-    INVALID_PARAMS,
-    UPLOAD_REJECTED,
-    Param,
-    PrinterBusy,
-    Registry,
-    RpcError,
-)
+from hostd.control.codes import INVALID_PARAMS, UPLOAD_REJECTED, RpcError
+from hostd.control.rpc import Param, Registry
 from hostd.control.server import Client
 from hostd.control.upload import PartUploads, write_base64
+from hostd.errors import PrinterBusy
 from hostd.jobs.spool import Staged
 from hostd.jobs.states import JobState, JobStateError, parse_state
 from hostd.link.replies import Echo, ErrorReply, Ok, Position, Temperatures

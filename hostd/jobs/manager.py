@@ -16,8 +16,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-from hostd.control.events import EventBus
-from hostd.control.rpc import PrinterBusy, ShuttingDown
+from hostd.errors import PrinterBusy, ShuttingDown
+from hostd.events import EventBus
 from hostd.jobs.file_check import FileChecker, parse_upload
 from hostd.jobs.spool import SUFFIX, Spool, SpoolError, Staged, upload_kind
 from hostd.jobs.states import TERMINAL, WAITING, JobState, JobStateError

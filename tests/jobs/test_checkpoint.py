@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 
-from hostd.control.events import EventBus
+from hostd.events import EventBus
 from hostd.jobs.manager import Active, JobManager
 from hostd.jobs.spool import Spool
 from hostd.jobs.store import JobStore

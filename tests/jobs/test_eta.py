@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hostd.control.events import EventBus
+from hostd.events import EventBus
 from hostd.jobs import manager as manager_module
 from hostd.jobs.manager import Active, JobManager, eta
 from hostd.jobs.spool import Spool
