@@ -28,7 +28,6 @@ from typing import Any
 
 from hostd import __version__
 from hostd.config import Config
-from hostd.config.placeholders import process_values
 from hostd.control.endpoints import build_registry
 from hostd.control.server import ControlError, ControlServer
 from hostd.errors import PrinterBusy
@@ -41,7 +40,7 @@ from hostd.link.link import SerialLink
 from hostd.link.replies import Reply
 from hostd.link.settings import link_settings_from_config
 from hostd.printer.envelope import envelope_from_config
-from hostd.printer.streamer import StreamSettings
+from hostd.printer.settings import stream_settings_from_config
 from hostd.sdnotify import listen_fds, notify, watchdog_interval
 from hostd.sim.settings import sim_settings_from_config
 from hostd.slicing_worker import SlicingWorker
@@ -76,21 +75,6 @@ class LinkPort:
 
     async def query(self, command: str) -> tuple[Reply, ...]:
         return (await self.link.query(command),)
-
-
-def stream_settings(cfg: Config) -> StreamSettings:
-    p = cfg.section("process")
-    t = cfg.section("transition")
-    return StreamSettings(
-        lookahead=int(cfg.get("serial.max_queued", 64)),
-        retract=float(p["retract_length"]), retract_f=float(p["retract_speed"]) * 60,
-        lift=10.0, lift_f=600.0, travel_f=float(p["travel_speed"]) * 60,
-        rotary_f=float(cfg["machine.max_rotary_velocity"]) * 60,
-        safe_height=float(p["safe_height"]), z_max=float(cfg["machine.z_range"][1]),
-        position_tolerance=float(t["position_tolerance"]),
-        angle_tolerance=float(t["angle_tolerance"]),
-        temperature_tolerance=float(t["temperature_tolerance"]),
-        end_gcode=str(p["end_gcode"]), end_values=process_values(cfg))
 
 
 def _state_dir_problem(state_dir: Path, exc: OSError) -> str:
@@ -154,7 +138,7 @@ class Daemon:
         except OSError as exc:
             raise DaemonError(_state_dir_problem(self.state_dir, exc)) from None
         self._jobs = JobManager(self.store, spool, self.worker, lambda: LinkPort(self.link),
-                                self.bus, stream_settings(self.config),
+                                self.bus, stream_settings_from_config(self.config),
                                 envelope_from_config(self.config.data), printer=self.link,
                                 hold_after_print=self.config["daemon.next_job"] == "after_clear")
         self.server = ControlServer(

@@ -27,7 +27,8 @@ from hostd.printer.envelope import Envelope
 from hostd.printer.errors import PrinterError
 from hostd.printer.modal import ModalState
 from hostd.printer.program import Program, Transition
-from hostd.printer.streamer import Hooks, Port, Streamer, StreamSettings, safe_z
+from hostd.printer.settings import StreamSettings
+from hostd.printer.streamer import Hooks, Port, Streamer, safe_z
 from hostd.slicing_worker import SliceError, SlicingWorker, sliced_reason
 
 log = logging.getLogger(__name__)
