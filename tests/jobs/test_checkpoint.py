@@ -10,7 +10,8 @@ from typing import Any
 import pytest
 
 from hostd.events import EventBus
-from hostd.jobs.manager import Active, JobManager
+from hostd.jobs.active import Active
+from hostd.jobs.manager import JobManager
 from hostd.jobs.spool import Spool
 from hostd.jobs.store import JobStore
 from hostd.printer.program import parse_program
