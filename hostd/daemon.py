@@ -40,6 +40,7 @@ from hostd.link.link import SerialLink
 from hostd.link.replies import Reply
 from hostd.link.settings import link_settings_from_config
 from hostd.printer.envelope import envelope_from_config
+from hostd.printer.raw_gcode import RawReplies, run_script
 from hostd.printer.settings import stream_settings_from_config
 from hostd.sdnotify import listen_fds, notify, watchdog_interval
 from hostd.sim.settings import sim_settings_from_config
@@ -101,7 +102,8 @@ def _not_a_directory(path: Path) -> Path | None:
 
 
 class Daemon:
-    """All components of one running daemon."""
+    """All components of one running daemon; the control endpoints see it as a
+    :class:`~hostd.control.host.Host`."""
 
     def __init__(self, config: Config) -> None:
         self.config = config
@@ -125,6 +127,14 @@ class Daemon:
     def jobs(self) -> JobManager:
         assert self._jobs is not None
         return self._jobs
+
+    @property
+    def machine_name(self) -> str:
+        return str(self.config["machine.name"])
+
+    @property
+    def max_upload_bytes(self) -> int:
+        return int(self.config["daemon.max_upload_bytes"])
 
     async def start(self) -> None:
         try:
@@ -273,6 +283,12 @@ class Daemon:
     async def _query_temperatures(self) -> None:
         with contextlib.suppress(LinkError):  # the link's own state and log tell of it
             await self.link.query("M105")
+
+    async def raw_gcode(self, script: str) -> RawReplies:
+        """Run an operator's raw G-code: checked against the machine's travel, limited to a
+        safe set while a job prints (:mod:`hostd.printer.raw_gcode`)."""
+        return await run_script(script, self.jobs.envelope, self.jobs.streamer(),
+                                self.link.query)
 
     async def firmware_restart(self) -> dict[str, Any]:
         """Reset the firmware and reconnect (after a halt); refused while a job is on the

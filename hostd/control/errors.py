@@ -22,7 +22,7 @@ from hostd.jobs.spool import SpoolError
 from hostd.jobs.states import JobStateError
 from hostd.jobs.store import JobNotFound, StoreError
 from hostd.link.errors import LinkError
-from hostd.printer.errors import PrinterError
+from hostd.printer.errors import PrinterError, ScriptRefused
 from hostd.slicing_worker import SliceError
 
 ERROR_CODES: tuple[tuple[type[BaseException], int], ...] = (
@@ -33,6 +33,7 @@ ERROR_CODES: tuple[tuple[type[BaseException], int], ...] = (
     (SliceError, UPLOAD_REJECTED),
     (PrinterBusy, PRINTER_BUSY),
     (ShuttingDown, SHUTTING_DOWN),
+    (ScriptRefused, INVALID_PARAMS),  # a bad script param: before PrinterError, its base
     (PrinterError, PRINTER_ERROR),
     (LinkError, PRINTER_ERROR),
     (EventError, INVALID_PARAMS),

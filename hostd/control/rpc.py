@@ -66,6 +66,8 @@ class Param:
     doc: str = ""
     line: bool = False
     """A string shown as one line of text (a job name): no control characters."""
+    arg: str | None = None
+    """The handler's keyword for it, where the name cannot be one (``from``)."""
 
     def check(self, value: Any) -> Any:
         types = _TYPES[self.type]
@@ -133,11 +135,11 @@ class Endpoint:
         out = {}
         for p in self.params:
             if p.name in params:
-                out[p.name] = p.check(params[p.name])
+                out[p.arg or p.name] = p.check(params[p.name])
             elif p.required:
                 raise RpcError(INVALID_PARAMS, f"missing parameter: {p.name}")
             else:
-                out[p.name] = p.default
+                out[p.arg or p.name] = p.default
         return out
 
 
