@@ -115,6 +115,15 @@ def test_the_link_loads_the_emulator_only_to_open_sim() -> None:
     assert offences == []
 
 
+def test_hostctl_imports_only_the_protocol_of_the_control_socket() -> None:
+    """The client needs the error codes and the text checks, not the server's error table
+    (which imports the whole domain): ``hostctl`` starts light."""
+    light = ("hostd.control.codes", "hostd.control.text")
+    offences = [o for o in _offences(modules("hostd/cli"), ("hostd.control",))
+                if not any(o.endswith(f"imports {m}") or f"imports {m}." in o for m in light)]
+    assert offences == []
+
+
 def test_the_daemon_starts_without_the_emulator_loaded() -> None:
     """What the daemon imports to drive a printer leaves the emulator out (the ``hostd.sim``
     package itself imports none of its modules)."""
