@@ -57,11 +57,12 @@ sys.path[:0] = [str(ROOT / "bench"), str(ROOT)]
 from daemon import synthetic_gcode  # noqa: E402
 
 from hostd.config.loader import defaults  # noqa: E402
-from hostd.daemon import LinkPort, stream_settings  # noqa: E402
+from hostd.daemon import LinkPort  # noqa: E402
 from hostd.link.link import SerialLink  # noqa: E402
 from hostd.link.settings import link_settings_from_config  # noqa: E402
 from hostd.link.transport import Connection, LineReceiver  # noqa: E402
 from hostd.printer.program import parse_program  # noqa: E402
+from hostd.printer.settings import stream_settings_from_config  # noqa: E402
 from hostd.printer.streamer import Hooks, Streamer  # noqa: E402
 
 if not Path(sys.modules["hostd"].__file__ or "").resolve().is_relative_to(ROOT):
@@ -152,7 +153,8 @@ async def stream(text: str, per_read: int, tracer: Callable[..., Any] | None = N
             polled[0] = st.acked
             st.modal  # noqa: B018  (a status poll brings the modal state up to date)
 
-    streamer = Streamer(LinkPort(link), program, stream_settings(cfg), Hooks(progress=progress))
+    streamer = Streamer(LinkPort(link), program, stream_settings_from_config(cfg),
+                        Hooks(progress=progress))
     if tracer is not None:
         sys.settrace(tracer)
     t0 = time.perf_counter()

@@ -27,8 +27,8 @@ WRAPPED = {  # module: (class, method) pairs timed as "Class.method" (plain meth
                         ("SerialLink", "status")],
     "hostd.link.transport": [("DirectSerialTransport", "_hold_or_watch")],
     "hostd.daemon": [("Daemon", "snapshot")],
-    "hostd.jobs.manager": [("JobManager", "status"), ("JobManager", "_on_progress"),
-                           ("JobManager", "_persist")],
+    "hostd.jobs.manager": [("JobManager", "status")],
+    "hostd.jobs.progress": [("ProgressRecorder", "on_progress"), ("ProgressRecorder", "persist")],
     "hostd.printer.streamer": [("Streamer", "_ack_head"), ("Streamer", "_catch_up")],
     "hostd.control.server": [("Client", "send")],
 }

@@ -2,7 +2,7 @@
 event loop.
 
 Run: ``.venv/bin/python bench/store.py [--writes 3000]``. It writes progress rows (the
-columns and modal state ``JobManager._persist`` writes) to a fresh database in a temporary
+columns and modal state ``ProgressRecorder.persist`` writes) to a fresh database in a temporary
 directory, first as hostd does (no commit checkpoints the write-ahead log:
 ``JobStore.checkpoint`` runs on a worker thread every ``CHECKPOINT_CHANGES`` rows, here
 between two writes as the daemon's quarter-second spacing allows), then with SQLite's

@@ -28,11 +28,10 @@ from typing import Any
 
 from hostd import __version__
 from hostd.config import Config
-from hostd.config.placeholders import process_values
 from hostd.control.endpoints import build_registry
-from hostd.control.events import EventBus
-from hostd.control.rpc import PrinterBusy
 from hostd.control.server import ControlError, ControlServer
+from hostd.errors import PrinterBusy
+from hostd.events import EventBus
 from hostd.jobs.manager import JobManager
 from hostd.jobs.spool import Spool
 from hostd.jobs.store import JobStore, StoreError
@@ -41,7 +40,8 @@ from hostd.link.link import SerialLink
 from hostd.link.replies import Reply
 from hostd.link.settings import link_settings_from_config
 from hostd.printer.envelope import envelope_from_config
-from hostd.printer.streamer import StreamSettings
+from hostd.printer.raw_gcode import RawReplies, run_script
+from hostd.printer.settings import stream_settings_from_config
 from hostd.sdnotify import listen_fds, notify, watchdog_interval
 from hostd.sim.settings import sim_settings_from_config
 from hostd.slicing_worker import SlicingWorker
@@ -78,21 +78,6 @@ class LinkPort:
         return (await self.link.query(command),)
 
 
-def stream_settings(cfg: Config) -> StreamSettings:
-    p = cfg.section("process")
-    t = cfg.section("transition")
-    return StreamSettings(
-        lookahead=int(cfg.get("serial.max_queued", 64)),
-        retract=float(p["retract_length"]), retract_f=float(p["retract_speed"]) * 60,
-        lift=10.0, lift_f=600.0, travel_f=float(p["travel_speed"]) * 60,
-        rotary_f=float(cfg["machine.max_rotary_velocity"]) * 60,
-        safe_height=float(p["safe_height"]), z_max=float(cfg["machine.z_range"][1]),
-        position_tolerance=float(t["position_tolerance"]),
-        angle_tolerance=float(t["angle_tolerance"]),
-        temperature_tolerance=float(t["temperature_tolerance"]),
-        end_gcode=str(p["end_gcode"]), end_values=process_values(cfg))
-
-
 def _state_dir_problem(state_dir: Path, exc: OSError) -> str:
     """One line for a state directory hostd cannot make or use: the file in the way of it
     or of a directory in it (``/var/lib/hostd/spool is a file, not a directory``), else
@@ -117,7 +102,8 @@ def _not_a_directory(path: Path) -> Path | None:
 
 
 class Daemon:
-    """All components of one running daemon."""
+    """All components of one running daemon; the control endpoints see it as a
+    :class:`~hostd.control.host.Host`."""
 
     def __init__(self, config: Config) -> None:
         self.config = config
@@ -142,6 +128,14 @@ class Daemon:
         assert self._jobs is not None
         return self._jobs
 
+    @property
+    def machine_name(self) -> str:
+        return str(self.config["machine.name"])
+
+    @property
+    def max_upload_bytes(self) -> int:
+        return int(self.config["daemon.max_upload_bytes"])
+
     async def start(self) -> None:
         try:
             self.state_dir.mkdir(parents=True, exist_ok=True)
@@ -154,7 +148,7 @@ class Daemon:
         except OSError as exc:
             raise DaemonError(_state_dir_problem(self.state_dir, exc)) from None
         self._jobs = JobManager(self.store, spool, self.worker, lambda: LinkPort(self.link),
-                                self.bus, stream_settings(self.config),
+                                self.bus, stream_settings_from_config(self.config),
                                 envelope_from_config(self.config.data), printer=self.link,
                                 hold_after_print=self.config["daemon.next_job"] == "after_clear")
         self.server = ControlServer(
@@ -289,6 +283,12 @@ class Daemon:
     async def _query_temperatures(self) -> None:
         with contextlib.suppress(LinkError):  # the link's own state and log tell of it
             await self.link.query("M105")
+
+    async def raw_gcode(self, script: str) -> RawReplies:
+        """Run an operator's raw G-code: checked against the machine's travel, limited to a
+        safe set while a job prints (:mod:`hostd.printer.raw_gcode`)."""
+        return await run_script(script, self.jobs.envelope, self.jobs.streamer(),
+                                self.link.query)
 
     async def firmware_restart(self) -> dict[str, Any]:
         """Reset the firmware and reconnect (after a halt); refused while a job is on the

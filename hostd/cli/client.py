@@ -11,7 +11,7 @@ from collections.abc import Iterator
 from typing import Any
 
 from hostd.cli.errors import EXIT_REFUSED, EXIT_UNREACHABLE, EXIT_USAGE, CliError
-from hostd.control.rpc import INVALID_PARAMS, UPLOAD_REJECTED
+from hostd.control.codes import INVALID_PARAMS, UPLOAD_REJECTED
 
 DEFAULT_SOCKET = "/run/hostd/hostd.sock"
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import unicodedata
 from typing import Any
 
-from hostd.control.rpc import CONTROL_CATEGORIES, control_character
+from hostd.control.text import CONTROL_CATEGORIES, control_character
 
 
 def printable(text: Any) -> str:

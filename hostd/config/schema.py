@@ -188,6 +188,15 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "temperature_tolerance": Number("Largest hotend drift before a rotate move, °C.", 5.0,
                                         lo=0.0, hi=100.0),
     },
+    "pause": {
+        "lift": Number("Lift along machine Z when a job pauses, after the retract (no "
+                       "rotation; at most to machine.z_range's top), mm.", 10.0, lo=0.0,
+                       hi=700.0),
+        "lift_speed": Number("Speed of the Z moves hostd makes itself, mm/s: a pause's lift "
+                             "and the way back down, and the climb to the safe Z and back "
+                             "when a resume brings the head back (after a move by hand, or "
+                             "for an interrupted job).", 10.0, lo=0.1, hi=500.0),
+    },
     "daemon": {
         "socket": Text("Path of the JSON-RPC control socket.", "/run/hostd/hostd.sock",
                        path=True, max_bytes=UNIX_SOCKET_PATH_MAX),

@@ -1,7 +1,8 @@
-"""JSON-RPC 2.0: message framing, the declarative endpoint registry, and THE error table.
+"""JSON-RPC 2.0: message framing and the declarative endpoint registry.
 
 Every exception a handler raises is turned into a JSON-RPC error by :func:`error_for`, using
-the single table :data:`ERROR_CODES`; nothing else in the daemon picks error codes.
+the single table :data:`hostd.control.errors.ERROR_CODES`; nothing else in the daemon picks
+error codes (the numbers themselves are :mod:`hostd.control.codes`).
 """
 
 from __future__ import annotations
@@ -9,86 +10,32 @@ from __future__ import annotations
 import json
 import logging
 import math
-import unicodedata
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from hostd.control.codes import (
+    INTERNAL_ERROR,
+    INVALID_PARAMS,
+    INVALID_REQUEST,
+    METHOD_NOT_FOUND,
+    PARSE_ERROR,
+    RpcError,
+)
+from hostd.control.errors import ERROR_CODES
+from hostd.control.text import control_character
+
 log = logging.getLogger(__name__)
-
-PARSE_ERROR = -32700
-INVALID_REQUEST = -32600
-METHOD_NOT_FOUND = -32601
-INVALID_PARAMS = -32602
-INTERNAL_ERROR = -32603
-# application errors (-32000 .. -32099 are reserved for implementations)
-JOB_NOT_FOUND = -32001
-JOB_STATE = -32002
-UPLOAD_REJECTED = -32003
-PRINTER_BUSY = -32004
-PRINTER_ERROR = -32005
-SLICE_FAILED = -32006
-MESSAGE_TOO_LARGE = -32007
-SHUTTING_DOWN = -32008
-
-
-class RpcError(Exception):
-    """An error with an explicit JSON-RPC code (bad params, unknown method, ...)."""
-
-    def __init__(self, code: int, message: str, data: Any = None) -> None:
-        super().__init__(message)
-        self.code = code
-        self.message = message
-        self.data = data
-
-
-class PrinterBusy(Exception):
-    """A request that conflicts with the print in progress (e.g. raw G-code while printing)."""
-
-
-class ShuttingDown(Exception):
-    """The daemon is stopping and takes no new work."""
-
-
-def _error_table() -> tuple[tuple[type[BaseException], int], ...]:
-    """Exception classes → codes, most specific first. THE one place codes are chosen."""
-    from hostd.control.events import EventError
-    from hostd.jobs.spool import SpoolError
-    from hostd.jobs.states import JobStateError
-    from hostd.jobs.store import JobNotFound, StoreError
-    from hostd.link.errors import LinkError
-    from hostd.printer.errors import PrinterError
-    from hostd.slicing_worker import SliceError
-
-    return (
-        (RpcError, 0),  # carries its own code
-        (JobNotFound, JOB_NOT_FOUND),
-        (JobStateError, JOB_STATE),
-        (StoreError, JOB_STATE),
-        (SpoolError, UPLOAD_REJECTED),
-        (SliceError, UPLOAD_REJECTED),
-        (PrinterBusy, PRINTER_BUSY),
-        (ShuttingDown, SHUTTING_DOWN),
-        (PrinterError, PRINTER_ERROR),
-        (LinkError, PRINTER_ERROR),
-        (EventError, INVALID_PARAMS),
-    )
-
-
-_TABLE: tuple[tuple[type[BaseException], int], ...] | None = None
 
 
 def error_for(exc: BaseException) -> dict[str, Any]:
     """The JSON-RPC ``error`` object for ``exc``; unknown exceptions become internal errors."""
-    global _TABLE
-    if _TABLE is None:
-        _TABLE = _error_table()
     if isinstance(exc, RpcError):
         err: dict[str, Any] = {"code": exc.code, "message": exc.message}
         if exc.data is not None:
             err["data"] = exc.data
         return err
-    for cls, code in _TABLE:
+    for cls, code in ERROR_CODES:
         if isinstance(exc, cls):
             return {"code": code, "message": str(exc) or cls.__name__}
     log.error("internal error", exc_info=exc)
@@ -119,6 +66,8 @@ class Param:
     doc: str = ""
     line: bool = False
     """A string shown as one line of text (a job name): no control characters."""
+    arg: str | None = None
+    """The handler's keyword for it, where the name cannot be one (``from``)."""
 
     def check(self, value: Any) -> Any:
         types = _TYPES[self.type]
@@ -149,17 +98,6 @@ def _check_text(name: str, value: str) -> None:
     except UnicodeEncodeError as exc:
         raise RpcError(INVALID_PARAMS, f"{name}: not Unicode text (a lone surrogate at "
                        f"character {exc.start})") from None
-
-
-CONTROL_CATEGORIES = frozenset({"Cc", "Zl", "Zp"})
-"""Unicode categories that break a line of text: C0/C1 controls (newline, tab, escape, DEL)
-and the line and paragraph separators."""
-
-
-def control_character(text: str) -> int | None:
-    """The index of the first control character in ``text``, or ``None``."""
-    return next((i for i, ch in enumerate(text)
-                 if unicodedata.category(ch) in CONTROL_CATEGORIES), None)
 
 
 def _check_line(name: str, value: str) -> None:
@@ -197,11 +135,11 @@ class Endpoint:
         out = {}
         for p in self.params:
             if p.name in params:
-                out[p.name] = p.check(params[p.name])
+                out[p.arg or p.name] = p.check(params[p.name])
             elif p.required:
                 raise RpcError(INVALID_PARAMS, f"missing parameter: {p.name}")
             else:
-                out[p.name] = p.default
+                out[p.arg or p.name] = p.default
         return out
 
 

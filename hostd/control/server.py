@@ -19,8 +19,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from hostd.control.events import EventBus
-from hostd.control.rpc import MESSAGE_TOO_LARGE, Registry, encode, notification, response
+from hostd.control.codes import MESSAGE_TOO_LARGE
+from hostd.control.rpc import Registry, encode, notification, response
+from hostd.events import EventBus
 
 log = logging.getLogger(__name__)
 

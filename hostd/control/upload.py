@@ -21,7 +21,7 @@ import asyncio
 import binascii
 from collections.abc import Callable, Iterator
 
-from hostd.control.rpc import INVALID_PARAMS, UPLOAD_REJECTED, RpcError
+from hostd.control.codes import INVALID_PARAMS, UPLOAD_REJECTED, RpcError
 from hostd.jobs.spool import Staged
 
 SLICE_CHARS = 1 << 18

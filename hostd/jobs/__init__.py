@@ -1,4 +1,6 @@
-"""Jobs: the life-cycle state machine, the SQLite job database and the upload spool."""
+"""Jobs: the life-cycle state machine, the SQLite job database and the upload spool, and the
+job manager over its parts (the queue and its hold, the slice and print loops, the progress
+hooks, resume points, one figures type for every view of a job)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Open the byte stream to the board: a real port or pty, or the in-process emulator.
+"""Open the byte stream to the board: a real port or pty, or the in-process emulator (imported
+only when ``sim://`` is opened).
 
 The port is an asyncio transport with a :class:`LineReceiver` protocol: every chunk the
 kernel hands over is split into lines in the transport's own callback and passed on at once,
@@ -12,14 +13,17 @@ import os
 import socket
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import serial
 import serial_asyncio
 
 from hostd.link.read_hold import HOLD_MIN_BUFFER, ReadHold
 from hostd.link.settings import BITS_PER_BYTE, LinkSettings
-from hostd.sim.server import SocketEmulator
 from hostd.sim.settings import SimSettings
+
+if TYPE_CHECKING:
+    from hostd.sim.server import SocketEmulator
 
 SIM_SCHEME = "sim://"
 LinesHandler = Callable[[list[bytes]], None]
@@ -220,6 +224,10 @@ def read_hold(settings: LinkSettings) -> ReadHold | None:
 
 
 async def _open_sim(sim: SimSettings) -> Connection:
+    """The emulator on one end of a socket pair, the link on the other. The emulator is
+    imported here, on its first use: a hostd that drives a printer never loads it."""
+    from hostd.sim.server import SocketEmulator
+
     host, board = socket.socketpair()
     emulator = await SocketEmulator.serve(sim, board)
     conn = await open_socket(host)

@@ -19,3 +19,8 @@ class TransitionFailed(PrinterError):
 
 class ProgramError(PrinterError):
     """A G-code file whose HOSTD markers are malformed."""
+
+
+class ScriptRefused(PrinterError):
+    """Raw G-code refused before any of it is sent: malformed, over a heater's limit or the
+    machine's travel, empty, or too long (``str()`` names the script and the problem)."""

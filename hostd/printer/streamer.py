@@ -26,6 +26,7 @@ from hostd.printer.errors import PrinterError, TransitionFailed
 from hostd.printer.intervention import Need, need_of_all
 from hostd.printer.modal import ModalState
 from hostd.printer.program import Program, Transition
+from hostd.printer.settings import StreamSettings
 
 log = logging.getLogger(__name__)
 FALLBACK_END = "M104 S0\nM140 S0\nM107\nM84\n"
@@ -56,25 +57,6 @@ class Port(Protocol):
     async def query(self, command: str) -> tuple[Reply, ...]:
         """Send ``command``, wait for its ok, return the replies that arrived for it."""
         ...
-
-
-@dataclass(frozen=True)
-class StreamSettings:
-    lookahead: int = 16
-    retract: float = 1.0
-    retract_f: float = 2100.0
-    lift: float = 10.0
-    lift_f: float = 600.0
-    travel_f: float = 7200.0
-    rotary_f: float = 3000.0
-    safe_height: float = 60.0
-    z_max: float = 700.0
-    position_tolerance: float = 0.05
-    angle_tolerance: float = 0.05
-    temperature_tolerance: float = 5.0
-    end_gcode: str = "M104 S0\nM140 S0\nM107\nG0 Z{safe_z} F3000\nG0 A0 C0 F3000\nM84\n"
-    end_values: dict[str, Any] = field(default_factory=dict)
-    """The end script's placeholders besides ``{safe_z}`` (the process settings)."""
 
 
 @dataclass

@@ -178,7 +178,7 @@ def test_every_placeholder_the_loader_accepts_is_one_the_daemon_can_fill() -> No
     but the daemon cannot fill would fail only then, mid-print."""
     from hostd.config.loader import defaults
     from hostd.config.placeholders import known_names, script_problem
-    from hostd.daemon import stream_settings
+    from hostd.printer.settings import stream_settings_from_config as stream_settings
 
     settings = stream_settings(defaults())
     for name in sorted(known_names()):

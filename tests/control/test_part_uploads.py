@@ -8,7 +8,7 @@ import base64
 
 import pytest
 
-from hostd.control.rpc import RpcError
+from hostd.control.codes import RpcError
 from hostd.control.upload import MAX_OPEN, PartUploads
 from hostd.jobs.spool import Spool, SpoolError
 

@@ -8,9 +8,9 @@ import stat
 
 import pytest
 
-from hostd.control.events import EventBus, EventError
 from hostd.control.rpc import Param, Registry, error_for
 from hostd.control.server import CLIENT_QUEUE, ControlServer
+from hostd.events import EventBus, EventError
 from hostd.jobs.states import JobStateError
 from hostd.jobs.store import JobNotFound
 
@@ -387,7 +387,8 @@ async def test_a_socket_path_too_long_to_bind_names_the_problem(tmp_path):
 @pytest.mark.parametrize("name", ["a\nWARNING fake.gcode", "tab\there.gcode", "esc\x1b[2J.gcode",
                                   "sep\u2028.gcode", "del\x7f.gcode"])
 def test_a_job_name_with_a_control_character_is_invalid_params(name):
-    from hostd.control.rpc import INVALID_PARAMS, Param, RpcError
+    from hostd.control.codes import INVALID_PARAMS, RpcError
+    from hostd.control.rpc import Param
 
     param = Param("name", "str", line=True)
     with pytest.raises(RpcError) as caught:

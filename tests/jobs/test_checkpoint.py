@@ -9,8 +9,9 @@ from typing import Any
 
 import pytest
 
-from hostd.control.events import EventBus
-from hostd.jobs.manager import Active, JobManager
+from hostd.events import EventBus
+from hostd.jobs.active import Active
+from hostd.jobs.manager import JobManager
 from hostd.jobs.spool import Spool
 from hostd.jobs.store import JobStore
 from hostd.printer.program import parse_program

@@ -7,9 +7,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from hostd.control.events import EventBus
-from hostd.jobs import manager as manager_module
-from hostd.jobs.manager import Active, JobManager, eta
+from hostd.events import EventBus
+from hostd.jobs import progress as manager_module
+from hostd.jobs.active import Active
+from hostd.jobs.figures import eta
+from hostd.jobs.manager import JobManager
 from hostd.jobs.spool import Spool
 from hostd.jobs.store import JobStore
 from hostd.printer.program import parse_program

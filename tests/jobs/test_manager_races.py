@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from hostd.control.events import EventBus
+from hostd.events import EventBus
 from hostd.jobs.manager import JobManager
 from hostd.jobs.spool import Spool
 from hostd.jobs.states import JobState

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from hostd.control.events import EventBus
+from hostd.events import EventBus
 from hostd.jobs.manager import JobManager
 from hostd.jobs.spool import Spool
 from hostd.jobs.store import JobStore

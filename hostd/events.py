@@ -49,12 +49,7 @@ class EventBus:
 
     def subscribe(self, handler: Handler, names: Iterable[str] | None = None) -> Callable[[], None]:
         """Call ``handler(name, data)`` for every event (or only ``names``); returns unsubscribe."""
-        wanted = None if names is None else frozenset(names)
-        if wanted is not None:
-            unknown = wanted - set(EVENT_NAMES)
-            if unknown:
-                raise EventError(f"unknown events: {', '.join(sorted(unknown))} "
-                                 f"(known: {', '.join(EVENT_NAMES)})")
+        wanted = None if names is None else check_names(names)
         key = self._next
         self._next += 1
         self._subs[key] = _Subscription(handler, wanted)
@@ -79,3 +74,13 @@ class EventBus:
     def status(self) -> dict[str, Any]:
         return {"subscribers": len(self._subs), "published": self.published,
                 "handler_errors": self.handler_errors}
+
+
+def check_names(names: Iterable[str]) -> frozenset[str]:
+    """``names`` as a set; :class:`EventError` naming those that are no event's."""
+    wanted = frozenset(names)
+    unknown = wanted - set(EVENT_NAMES)
+    if unknown:
+        raise EventError(f"unknown events: {', '.join(sorted(unknown))} "
+                         f"(known: {', '.join(EVENT_NAMES)})")
+    return wanted
