@@ -10,6 +10,7 @@ a :class:`~slicer.mesh.errors.MeshError`: bad input), checked by :mod:`slicer.en
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -25,10 +26,12 @@ from kinematics.machine import MachineGeometry
 from slicer import envelope
 from slicer.gcode import Draft, E, MachineSetup, draft, parse_words
 from slicer.hugepages import small_pages
+from slicer.paths import NO_HINTS, LeanHints, SlicingError, plan_print
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.replay import (
     ModelIndex,
+    ReplayReport,
     model_index,
     overhang_text,
     replay_check,
@@ -42,6 +45,9 @@ if TYPE_CHECKING:
     from slicer.mesh import BaseChoice, Placement
 
 T = TypeVar("T")
+log = logging.getLogger(__name__)
+
+REPAIR_ROUNDS = 2  # plans again with hints from the replay, at most (the closed loop)
 
 
 class SliceError(ValueError):
@@ -206,8 +212,17 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         travel_ranges = tuple((float(lo), float(hi)) for lo, hi in np.reshape(travel, (3, 2)))
         setup = MachineSetup(geometry, head, platform_radius, travel_ranges)
         seed = None if planar else (decompose_settings.seed if decompose_settings else 0)
-        result = _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name,
-                         seed)
+        first = _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name,
+                        seed)
+
+        def again(hints: LeanHints) -> tuple[SliceResult, np.ndarray]:
+            assert plan.decomposition is not None
+            t2 = time.perf_counter()
+            replanned = plan_print(plan.decomposition, settings, geometry, head, hints=hints)
+            return _finish(mesh, replanned, settings, setup, index, {}, t2, keep_plan, name,
+                           seed)
+
+        result = _repaired(first, again if plan.decomposition is not None else None, timings)
         return replace(result, merged_shells=placement.merged_shells,
                        base_note=None if plan.base is None else plan.base.note)
 
@@ -274,11 +289,56 @@ def _with_grid(index: Future[ModelIndex], settings: ProcessSettings) -> ModelInd
     return model
 
 
+def _repaired(first: tuple[SliceResult, np.ndarray],
+              again: Callable[[LeanHints], tuple[SliceResult, np.ndarray]] | None,
+              timings: dict[str, float], rounds: int = REPAIR_ROUNDS) -> SliceResult:
+    """The closed loop: while the best result so far has walls printed in the air (the
+    replay's unsupported wall layers), plan again with hints at the unsupported walls of
+    every try (:class:`~slicer.paths.LeanHints`: the root leans harder there), at most
+    ``rounds`` times; the best result (fewest such layers, then most walls supported) is
+    kept. A try that fails outright (a collision, a layer in the air) ends the loop. The
+    rounds' seconds are ``timings["repair"]`` and their number ``timings["repair_rounds"]``."""
+    best, misses = first
+    hints = NO_HINTS
+    t0 = time.perf_counter()
+    done = 0
+    while again is not None and done < rounds and _bad_walls(best) and len(misses):
+        hints = hints.more(misses)
+        done += 1
+        try:
+            result, misses = again(hints)
+        except (SliceError, SlicingError) as exc:
+            log.info("repair round %d failed: %s", done, exc)
+            break
+        log.info("repair round %d: %d unsupported wall layers (best so far %d)", done,
+                 _bad_walls(result), _bad_walls(best))
+        if _rank(result) < _rank(best):
+            best = result
+    if done:
+        timings["repair"] = time.perf_counter() - t0
+        timings["repair_rounds"] = float(done)
+        best.timings.update({k: timings[k] for k in ("repair", "repair_rounds")})
+    return best
+
+
+def _bad_walls(result: SliceResult) -> int:
+    """How many wall layers the result's replay found printed in the air."""
+    layers = result.replay.get("unsupported_wall_layers", [])
+    return len(layers) if isinstance(layers, list) else 0
+
+
+def _rank(result: SliceResult) -> tuple[int, float]:
+    """Fewer unsupported wall layers first, then more walls supported."""
+    walls = result.replay.get("wall_supported", 1.0)
+    return (_bad_walls(result), -float(walls) if isinstance(walls, int | float) else 0.0)
+
+
 def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
             setup: MachineSetup, index: Future[ModelIndex] | None, timings: dict[str, float],
             t0: float, keep_plan: bool, name: str = "<mesh>", seed: int | None = None
-            ) -> SliceResult:
-    """G-code for ``plan``, its envelope check and, when ``index`` is given, its replay check.
+            ) -> tuple[SliceResult, np.ndarray]:
+    """G-code for ``plan``, its envelope check and, when ``index`` is given, its replay check;
+    with the replay's unsupported wall samples (platform frame, (k, 3)).
 
     ``seed`` is the decomposition's (``None`` for the planar control), for the advice of an
     :class:`OverhangError`.
@@ -291,18 +351,20 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
     check_envelope(moves, name)
     timings["gcode"] = time.perf_counter() - t1
     report: dict[str, object] = {}
+    misses = np.zeros((0, 3))
     if index is None:
         res = _timed(moves.finish, timings, "text")
     else:
         with ThreadPoolExecutor(1, "gcode-text") as writer:
             text = writer.submit(_timed, moves.finish, timings, "text")
-            report = _replayed(moves, mesh, setup, index, timings, seed)
+            rep = _replayed(moves, mesh, setup, index, timings, seed)
+            report, misses = rep.to_dict(), rep.wall_misses
             res = text.result()
     return SliceResult(res.lines, len(plan.subparts),
                        sum(len(sp.layers) for sp in plan.subparts), _thickness(plan),
                        res.estimate.header(), report, res.transitions,
                        {**{f"plan.{k}": v for k, v in plan.timings.items()}, **timings},
-                       time.perf_counter() - t0, plan if keep_plan else None)
+                       time.perf_counter() - t0, plan if keep_plan else None), misses
 
 
 def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:
@@ -316,7 +378,7 @@ def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:
 
 def _replayed(moves: Draft, mesh: trimesh.Trimesh, setup: MachineSetup,
               index: Future[ModelIndex], timings: dict[str, float], seed: int | None = None
-              ) -> dict[str, object]:
+              ) -> ReplayReport:
     """The replay report of ``moves``; raises :class:`CollisionError` if the head hits,
     :class:`OverhangError` if a layer prints in the air (advice for decomposition ``seed``,
     ``None``: the planar control)."""
@@ -329,7 +391,7 @@ def _replayed(moves: Draft, mesh: trimesh.Trimesh, setup: MachineSetup,
             raise CollisionError(f"replay found {rep.collisions} head collision(s); "
                                  f"refusing to write the file: {first}")
         raise OverhangError(overhang_message(rep.overhang_layers, seed))
-    return rep.to_dict()
+    return rep
 
 
 def overhang_message(layers: list[dict[str, object]], seed: int | None) -> str:

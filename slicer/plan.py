@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
+    from slicer.decompose import Decomposition
     from slicer.mesh import BaseChoice
 
 PATH_KINDS = ("perimeter", "infill", "solid", "interface")
@@ -94,6 +95,8 @@ class PrintPlan:
 
     ``base`` is the decomposition's choice of the face it stands on (None for the planar
     control); when ``base.turn`` is set the part stands on another face than the loader's.
+    ``decomposition`` is the one it was planned from (None for the planar control), for a
+    plan again with hints (:func:`slicer.paths.plan_print`).
     """
 
     placement: np.ndarray
@@ -101,3 +104,4 @@ class PrintPlan:
     volume_mm3: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
     base: BaseChoice | None = None
+    decomposition: Decomposition | None = field(default=None, repr=False)

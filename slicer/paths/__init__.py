@@ -10,6 +10,9 @@
 * :mod:`~slicer.paths.toolpaths`: one layer's perimeters, gap fill, infill and solid fill in
   its plane; :mod:`~slicer.paths.zones`: the solid skins of curved layers;
   :mod:`~slicer.paths.interfaces`: the parent solid under every child's base.
+* :mod:`~slicer.paths.upright`: the root's layers leaned against its overhangs
+  (:mod:`~slicer.paths.lean`, priced by :mod:`~slicer.paths.lean_costs`) and cut into
+  stacked pieces where the lean jumps (:mod:`~slicer.paths.columns`); beyond the paper.
 * :mod:`~slicer.paths.subpart_paths`: a sub-part's layers on a thread pool, in three stages;
   :mod:`~slicer.paths.layer_workers`: stages 1 and 2 of long sub-parts in forked processes.
 
@@ -19,6 +22,9 @@ The other stages import what they need from here, not from the modules.
 from __future__ import annotations
 
 from slicer.paths.layers import SlicingError
+from slicer.paths.lean_costs import LEAN, LeanSettings
 from slicer.paths.planner import plan_planar, plan_print
+from slicer.paths.upright import NO_HINTS, LeanHints
 
-__all__ = ["SlicingError", "plan_planar", "plan_print"]
+__all__ = ["LEAN", "NO_HINTS", "LeanHints", "LeanSettings", "SlicingError", "plan_planar",
+           "plan_print"]

@@ -43,6 +43,10 @@ NEWTON_STEPS = 4  # iterations finding the curve point t above the previous plan
 #: of what is in the way (e.g. "printed part", "platform", "A limits").
 Accept = Callable[[np.ndarray, np.ndarray, BaseGeometry], "str | None"]
 
+#: ``direction(s (n,)) -> (n, 3)``: the normal the layers turn towards at arc lengths ``s``
+#: (default: the curve's tangent; :mod:`slicer.paths.lean` leans them off it).
+Direction = Callable[[np.ndarray], np.ndarray]
+
 
 class SlicingError(ValueError):
     """A sub-part that cannot be sliced; the message names sub-part, layer and obstacle."""
@@ -167,7 +171,8 @@ def _try_plane(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray,
 
 def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLike,
                  base_normal: ArrayLike, ms: MarchSettings, accept: Accept | None = None,
-                 subpart: int = 0) -> Iterator[LayerPlane]:
+                 subpart: int = 0, direction: Direction | None = None
+                 ) -> Iterator[LayerPlane]:
     """March layer planes along ``curve`` from the base plane until the sections run out.
 
     A generator: each layer is yielded as soon as it is accepted, so the caller can update
@@ -186,6 +191,8 @@ def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLik
         Veto hook per candidate plane (orientation limits, collisions).
     subpart : int
         Index used in error messages.
+    direction : Direction, optional
+        The normals to turn towards (default: the curve's tangent).
 
     Raises
     ------
@@ -196,7 +203,8 @@ def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLik
     frame = plane_frame(below[1])
     s_prev, radius = 0.0, 0.0
     for i in range(ms.max_layers):
-        s, origin, target, max_turn, t_here = _step(curve, s_prev, below, radius, ms, i)
+        s, origin, target, max_turn, t_here = _step(curve, s_prev, below, radius, ms, i,
+                                                    direction)
         layer = _choose(solid, origin, frame, below, target, max_turn, ms, accept, subpart, i,
                         t_here)
         if layer is None:
@@ -208,7 +216,7 @@ def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLik
 
 
 def _step(curve: SkeletonCurve, s_prev: float, below: tuple[np.ndarray, np.ndarray],
-          radius: float, ms: MarchSettings, index: int
+          radius: float, ms: MarchSettings, index: int, direction: Direction | None = None
           ) -> tuple[float, np.ndarray, np.ndarray, float, float]:
     """The next plane's arc length, origin, target normal, largest turn (degrees) and its
     thickness on the skeleton.
@@ -226,7 +234,8 @@ def _step(curve: SkeletonCurve, s_prev: float, below: tuple[np.ndarray, np.ndarr
         s = _advance(curve, s_prev, below, t_here)
         origin = curve.point(s)[0]
         origin = origin + (t_here - (origin - below[0]) @ below[1]) * below[1]  # t_here above
-        target = curve.tangent(s)[0] if index else below[1]
+        aim = curve.tangent if direction is None else direction
+        target = aim(np.array([s]))[0] if index else below[1]
         max_turn = _max_turn(TOL.turn_margin * slack * ms.t, radius)
         need = float(np.degrees(np.arccos(np.clip(target @ below[1], -1.0, 1.0))))
         lopsided = ms.f_max - 1.0 < 1.0 - ms.f_min  # the cap binds: thinner, not thicker

@@ -32,8 +32,11 @@ from kinematics.orient import solve_orientation
 from slicer.paths.interfaces import ChildBase
 from slicer.paths.layer_workers import layer_processes, start_stages
 from slicer.paths.layers import LayerPlane, MarchSettings, SlicingError, march_layers
+from slicer.paths.lean import LeanPlan
+from slicer.paths.lean_costs import LEAN, LeanSettings
 from slicer.paths.skeleton import SkeletonCurve, line_curve, skeleton_curve
 from slicer.paths.subpart_paths import build_layers, pool, workers
+from slicer.paths.upright import NO_HINTS, Leaned, LeanHints, lean_upright, turning_of
 from slicer.plan import Layer, PrintPlan, SubpartPlan
 from slicer.planes2d import from_plane, plane_frame, section, slicing_solid
 from slicer.printhead import Printhead
@@ -212,17 +215,28 @@ class _Timer:
 
 
 def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np.ndarray, bool],
-                   settings: ProcessSettings, machine: _Machine, timer: _Timer
+                   settings: ProcessSettings, machine: _Machine, timer: _Timer,
+                   lean: LeanPlan | None = None
                    ) -> tuple[list[LayerPlane], list[tuple[float, float]]]:
     """March one sub-part's layers; returns them with their (A, C).
 
     ``base`` is (point, normal, upright): an upright part (the root, the planar control) is
-    sliced along the vertical through its base centre; others along their skeleton curve.
+    sliced along the vertical through its base centre; others along their skeleton curve. A
+    piece of the root with a ``lean`` plan is sliced along the root's axis from its base,
+    its layers turning towards the plan's directions (:mod:`slicer.paths.lean`).
     """
     solid = _solid(mesh)
     centre, _, _ = _base_centre(solid, base[0], base[1], settings.layer_height)
     timer.lap("sections")
-    if base[2]:
+    direction = None
+    if lean is not None:
+        curve = line_curve(centre, lean.axis, float(np.ptp(mesh.vertices @ lean.axis)) + 1.0,
+                           "axis")
+        start = float((centre - lean.origin) @ lean.axis)
+
+        def direction(s: np.ndarray) -> np.ndarray:
+            return lean.direction(np.asarray(s) + start)
+    elif base[2]:
         curve = line_curve(centre, UP, float(np.ptp(mesh.vertices[:, 2])) + 1.0, "axis")
     else:
         curve = _curve(mesh, centre, base[1])
@@ -234,7 +248,8 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
         return machine.accept(origin, frame, region)
 
     layers = []
-    for layer in march_layers(solid, curve, centre, base[1], _march(settings), accept, index):
+    for layer in march_layers(solid, curve, centre, base[1], _march(settings), accept, index,
+                              direction):
         layers.append(layer)
         poses.append(machine.pose)
         machine.c = machine.pose[1]
@@ -250,7 +265,8 @@ def _child_base(index: int, mesh: trimesh.Trimesh, point: np.ndarray, normal: np
 
 
 def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry: MachineGeometry,
-               head: Printhead | None = None) -> PrintPlan:
+               head: Printhead | None = None, lean: LeanSettings | None = LEAN,
+               hints: LeanHints = NO_HINTS) -> PrintPlan:
     """Slice a decomposition into a five-axis print plan.
 
     Parameters
@@ -263,11 +279,17 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
     head : Printhead, optional
         Collision model (default :meth:`Printhead.default`); ``None`` disables nothing —
         pass ``Printhead.default()`` explicitly to be clear.
+    lean : LeanSettings, optional
+        How the root's layers lean against its overhangs (:mod:`slicer.paths.upright`);
+        ``None`` keeps them square to the vertical (the paper's slicing).
+    hints : LeanHints
+        Where earlier tries printed walls in the air.
 
     Returns
     -------
     PrintPlan
-        Sub-parts in build order; ``timings`` has seconds per stage.
+        Sub-parts in build order (the root possibly cut into stacked pieces where its lean
+        jumps); ``timings`` has seconds per stage.
 
     Raises
     ------
@@ -277,6 +299,10 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
     head = Printhead.default() if head is None else head
     timer = _Timer()
     machine = _Machine(geometry, head)
+    source = decomposition
+    leaned = _leaned(decomposition, settings, head, lean, hints)
+    decomposition = leaned.decomposition
+    timer.lap("lean")
     subs = {s.index: s for s in decomposition.subparts}
     t = settings.layer_height
     threads = workers()
@@ -288,7 +314,7 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
             sp = subs[k]
             base = _base_of(sp)
             layers, poses = _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings,
-                                           machine, timer)
+                                           machine, timer, leaned.plans.get(k))
             kids = [_child_base(c.index, c.mesh, c.base_plane.point, c.base_plane.normal, t)
                     for c in decomposition.subparts
                     if c.parent == k and c.base_plane is not None]
@@ -311,7 +337,23 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
     timer.lap("paths")
     volume = float(getattr(decomposition, "volume", sum(s.mesh.volume for s in subs.values())))
     return PrintPlan(np.asarray(decomposition.placement, dtype=float), plans, volume,
-                     dict(timer.laps), getattr(decomposition, "base", None))
+                     dict(timer.laps), getattr(decomposition, "base", None), source)
+
+
+def _leaned(decomposition: Decomposition, settings: ProcessSettings, head: Printhead,
+            lean: LeanSettings | None, hints: LeanHints) -> Leaned:
+    """The root's lean plan and stacked pieces (:func:`slicer.paths.upright.lean_upright`)."""
+    subs = {s.index: s for s in decomposition.subparts}
+    root = subs.get(decomposition.order[0]) if decomposition.order else None
+    if lean is None or root is None or root.parent is not None:
+        return Leaned(decomposition)
+    t = settings.layer_height
+
+    def centre(mesh: trimesh.Trimesh, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        return _base_centre(_solid(mesh), point, normal, t)[0]
+
+    turning = turning_of(t, settings.min_layer_factor, settings.max_layer_share())
+    return lean_upright(decomposition, _solid(root.mesh), centre, turning, head, lean, hints)
 
 
 def _built(job: Future, timer: _Timer) -> list[Layer]:

@@ -75,6 +75,7 @@ BRIDGE_CHUNK = 1 << 16  # bridging candidates whose footprints are tested at onc
 BYTES_PER_SAMPLE = 160  # peak bytes per deposited sample, per head sample, per move
 BYTES_PER_TIP = 80
 BYTES_PER_MOVE = 64
+MAX_MISSES = 4096  # unsupported wall samples a report keeps
 
 
 class ReplayBudgetError(SlicingError):
@@ -109,6 +110,10 @@ class ReplayReport:
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
     cpu_timings: dict[str, float] = field(default_factory=dict)
+    # unsupported wall samples of the bad wall layers (platform frame, at most MAX_MISSES,
+    # evenly drawn), for a retry that leans the layers there; not in to_dict
+    wall_misses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False,
+                                    compare=False)
 
     @property
     def ok(self) -> bool:
@@ -116,8 +121,10 @@ class ReplayReport:
         return self.collisions == 0 and not self.overhang_layers
 
     def to_dict(self) -> dict[str, object]:
-        """The report as a plain dict."""
-        return asdict(self)
+        """The report as a plain dict (without ``wall_misses``)."""
+        d = asdict(self)
+        d.pop("wall_misses")
+        return d
 
     def summary(self) -> str:
         """One line of the main figures."""
@@ -248,7 +255,8 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         ok, wall, bridge = ok_f.result(), wall_f.result()[1], bridge_f.result()
         (n_hit, reports), (cov, shell_cov) = hit_f.result(), cov_f.result()
         inside_share = inside_f.result()
-    bad_layers = [_layer_name(s, k) for k in bad_wall_layers(s.seq[::JUDGE_STRIDE], wall, ok)]
+    bad_seq = bad_wall_layers(s.seq[::JUDGE_STRIDE], wall, ok)
+    bad_layers = [_layer_name(s, k) for k in bad_seq]
     n = max(len(ok), 1)
     per_layer = layer_support(s, judged_samples(len(s)), ok | bridge, w)
     to_part = np.linalg.inv(_placement(parsed)) if PLACEMENT in parsed.headers else None
@@ -261,6 +269,7 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         wall_points=int(wall.sum()),
         wall_supported=float(ok[wall].mean()) if wall.any() else 1.0,
         unsupported_wall_layers=bad_layers, collisions=n_hit,
+        wall_misses=_misses(s.p[::JUDGE_STRIDE], s.seq[::JUDGE_STRIDE], wall & ~ok, bad_seq),
         collision_messages=[r.message() for r in reports],
         worst_layer_unsupported=0.0 if worst_d is None else worst_d["share"],
         worst_layer_run_mm=0.0 if worst_d is None else worst_d["run_mm"],
@@ -268,6 +277,16 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         overhang_layers=[_layer_dict(per_layer, int(i), to_part)
                          for i in per_layer.overhangs()],
         seconds=time.perf_counter() - t0, timings=st.wall, cpu_timings=st.cpu)
+
+
+def _misses(points: np.ndarray, seq: np.ndarray, missed: np.ndarray, bad: list[int]
+            ) -> np.ndarray:
+    """The judged ``points`` (m, 3) that are ``missed`` (unsupported walls) in the layers
+    ``bad``, at most ``MAX_MISSES`` of them evenly drawn, (k, 3)."""
+    idx = np.flatnonzero(missed & np.isin(seq, bad))
+    if len(idx) > MAX_MISSES:
+        idx = idx[np.linspace(0, len(idx) - 1, MAX_MISSES).astype(np.int64)]
+    return points[idx].copy()
 
 
 def _fits(index: ModelIndex | None, line_width: float) -> TypeGuard[ModelIndex]:
