@@ -61,9 +61,11 @@ def _height(mesh: trimesh.Trimesh, origin: np.ndarray, axis: np.ndarray) -> floa
 def _base_points(child: Subpart) -> np.ndarray:
     """The child's mesh vertices on its base plane, (k, 3)."""
     v = np.asarray(child.mesh.vertices, dtype=float)
-    if child.base_plane is None:
+    base = child.base_plane
+    if base is None:
         return np.zeros((0, 3))
-    return v[np.abs(child.base_plane.signed(v)) < BASE_TOL]
+    h = (v - np.asarray(base.point, dtype=float)) @ np.asarray(base.normal, dtype=float)
+    return v[np.abs(h) < BASE_TOL]
 
 
 def profile(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray, height: float
@@ -148,7 +150,8 @@ def restack(decomposition: Decomposition, root: int, pieces: Sequence[Piece]
             continue
         parent = sp.parent
         if parent == root and sp.base_plane is not None:
-            parent = root + sum(1 for c in cuts if c.signed(sp.base_plane.point[None])[0] > 0)
+            at = np.asarray(sp.base_plane.point, dtype=float)[None]
+            parent = root + sum(1 for c in cuts if c.signed(at)[0] > 0)
         elif parent is not None:
             parent = renum[parent]
         subs.append(dataclasses.replace(sp, index=renum[k], parent=parent))

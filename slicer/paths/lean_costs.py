@@ -54,6 +54,10 @@ class LeanSettings:
     soft_deg, hard_deg : float
         Overhang below a layer's plane at which a face starts to cost, and costs its area
         (the replay's cone is 45° with a slack; curved walls fail it a few degrees sooner).
+    wall_deg, wall_slack : float
+        Faces within ``wall_deg`` of parallel to the axis (plain walls, which a lean tilts
+        evenly) take ``wall_slack`` degrees more on both limits: their beads stack with the
+        full slack of the replay's cone, measured to pass at 47–49°.
     jump_cost : float
         mm² of overhang a jump (another stacked piece, one more table turn) is worth.
     tilt_cost, turn_cost : float
@@ -73,6 +77,8 @@ class LeanSettings:
     max_tilt: float = 50.0
     soft_deg: float = 35.0
     hard_deg: float = 45.0
+    wall_deg: float = 15.0
+    wall_slack: float = 5.0
     jump_cost: float = 5.0
     tilt_cost: float = 0.002
     turn_cost: float = 0.005
@@ -266,6 +272,8 @@ def _faces(column: Column, settings: LeanSettings) -> _Faces:
     n = np.asarray(mesh.face_normals, dtype=float)[keep]
     a = area[keep]
     margin = np.zeros(len(a)) if column.margins is None else column.margins[keep]
+    plain = np.abs(n @ axis) < np.sin(np.radians(settings.wall_deg))
+    margin = margin - np.where(plain, settings.wall_slack, 0.0)
     soft, hard = settings.soft_deg - margin, settings.hard_deg - margin
     up = hinge(n @ axis, soft, hard) * a
     down = hinge(n @ axis, 0.0, 20.0) * a  # facing down: wrong in most directions below a cut

@@ -255,7 +255,8 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         ok, wall, bridge = ok_f.result(), wall_f.result()[1], bridge_f.result()
         (n_hit, reports), (cov, shell_cov) = hit_f.result(), cov_f.result()
         inside_share = inside_f.result()
-    bad_seq = bad_wall_layers(s.seq[::JUDGE_STRIDE], wall, ok)
+    held = ok | bridge  # a wall bead bridging sparse infill is a skin, not one in the air
+    bad_seq = bad_wall_layers(s.seq[::JUDGE_STRIDE], wall, held)
     bad_layers = [_layer_name(s, k) for k in bad_seq]
     n = max(len(ok), 1)
     per_layer = layer_support(s, judged_samples(len(s)), ok | bridge, w)
@@ -267,9 +268,9 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
         points=len(s), inside=inside_share, coverage=cov, shell_coverage=shell_cov,
         supported=float((ok | bridge).sum() / n), bridged=float((bridge & ~ok).sum() / n),
         wall_points=int(wall.sum()),
-        wall_supported=float(ok[wall].mean()) if wall.any() else 1.0,
+        wall_supported=float(held[wall].mean()) if wall.any() else 1.0,
         unsupported_wall_layers=bad_layers, collisions=n_hit,
-        wall_misses=_misses(s.p[::JUDGE_STRIDE], s.seq[::JUDGE_STRIDE], wall & ~ok, bad_seq),
+        wall_misses=_misses(s.p[::JUDGE_STRIDE], s.seq[::JUDGE_STRIDE], wall & ~held, bad_seq),
         collision_messages=[r.message() for r in reports],
         worst_layer_unsupported=0.0 if worst_d is None else worst_d["share"],
         worst_layer_run_mm=0.0 if worst_d is None else worst_d["run_mm"],

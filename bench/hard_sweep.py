@@ -1,0 +1,118 @@
+"""Support-free on parts a planar print cannot make: the hard models and a seeded sweep.
+
+    .venv/bin/python bench/hard_sweep.py                   # the files of shared/models/hard
+    .venv/bin/python bench/hard_sweep.py --variants 24     # slicer.mesh.hard_samples 0..23
+    .venv/bin/python bench/hard_sweep.py --variants 24 --heights 0.2 --jobs 2
+
+Every part is sliced as ``hostctl slice`` slices it (``slicer.pipeline.slice_model``, the
+shipped defaults, the retry loop included) at each layer height, and judged by the product's
+own replay: it **passes** when it is written with walls supported >= 99.8 %, no wall layer
+with more than 5 % of its wall points unsupported, no head collision and >= 99 % of the
+material inside the model. One line per slice (sub-parts, walls, unsupported wall layers,
+collisions, inside, seconds, retry rounds), then the pass share per class and height.
+Outcomes other than a pass: ``walls`` (written, but walls over air), ``refused`` (the slicer
+refused the part, with its reason), ``error`` (anything else: a bug).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections import defaultdict
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+HARD = ROOT.parent / "shared" / "models" / "hard"
+WALLS, INSIDE = 0.998, 0.99
+
+
+def slice_one(task: tuple[str, str, float]) -> dict[str, object]:
+    """Slice one part (a file, or ``variant:<index>``) at one layer height; its figures."""
+    import trimesh
+
+    from kinematics.machine import MachineGeometry
+    from slicer.decompose import DecompositionError
+    from slicer.mesh import MeshError
+    from slicer.mesh.hard_samples import hard_variant
+    from slicer.paths import SlicingError
+    from slicer.pipeline import SliceError, slice_model
+    from slicer.settings import ProcessSettings
+
+    kind, source, t = task
+    part: trimesh.Trimesh | str = source
+    if source.startswith("variant:"):
+        part = hard_variant(int(source.split(":")[1])).mesh()
+    t0 = time.perf_counter()
+    out: dict[str, object] = {"kind": kind, "name": Path(source).stem, "t": t}
+    try:
+        res = slice_model(part, ProcessSettings(layer_height=t), MachineGeometry())
+    except (SliceError, SlicingError, DecompositionError, MeshError) as exc:
+        out.update(outcome="refused", reason=str(exc)[:160])
+    except Exception as exc:  # the bench reports every failure as data
+        out.update(outcome="error", reason=f"{type(exc).__name__}: {exc}"[:160])
+    else:
+        rep = res.replay
+        bad = rep["unsupported_wall_layers"]
+        walls, inside = float(rep["wall_supported"]), float(rep["inside"])
+        ok = walls >= WALLS and not bad and rep["collisions"] == 0 and inside >= INSIDE
+        out.update(outcome="pass" if ok else "walls", subparts=res.subparts, walls=walls,
+                   bad=len(bad), collisions=rep["collisions"], inside=inside,
+                   rounds=int(res.timings.get("repair_rounds", 0)))
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+def line(r: dict[str, object]) -> str:
+    """One slice's figures."""
+    head = f"{r['name']:<28} {r['t']:.1f} mm  {r['outcome']:<7}"
+    if r["outcome"] in ("pass", "walls"):
+        return (f"{head} sub-parts {r['subparts']:>2}  walls {100 * r['walls']:6.2f} %  "
+                f"bad layers {r['bad']:>3}  collisions {r['collisions']}  inside "
+                f"{100 * r['inside']:6.2f} %  retries {r['rounds']}  {r['seconds']:6.1f} s")
+    return f"{head} {r['seconds']:6.1f} s  {r['reason']}"
+
+
+def tasks(args: argparse.Namespace) -> list[tuple[str, str, float]]:
+    """(class, source, layer height) of every slice asked for."""
+    from slicer.mesh.hard_samples import hard_variant
+
+    if args.variants:
+        parts = [(hard_variant(i).kind, f"variant:{i}")
+                 for i in range(args.start, args.start + args.variants)]
+    else:
+        parts = [("hard", str(p)) for p in sorted(HARD.glob("*.stl"))]
+    return [(k, s, t) for k, s in parts for t in args.heights]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--variants", type=int, default=0, help="sweep this many variants")
+    ap.add_argument("--start", type=int, default=0, help="first variant index")
+    ap.add_argument("--heights", type=float, nargs="+", default=[0.2, 0.3])
+    ap.add_argument("--jobs", type=int, default=2)
+    args = ap.parse_args()
+    todo = tasks(args)
+    results = []
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(args.jobs) as pool:
+        for r in pool.map(slice_one, todo):
+            print(line(r), flush=True)
+            results.append(r)
+    share: dict[tuple[str, float], list[bool]] = defaultdict(list)
+    for r in results:
+        share[(str(r["kind"]), float(r["t"]))].append(r["outcome"] == "pass")  # type: ignore[arg-type]
+    print(f"\npass share ({time.perf_counter() - t0:.0f} s, {args.jobs} jobs):")
+    for (kind, t), oks in sorted(share.items()):
+        print(f"  {kind:<6} {t:.1f} mm  {sum(oks):>3} / {len(oks):<3} "
+              f"{100 * sum(oks) / len(oks):5.1f} %")
+    everything = [r["outcome"] == "pass" for r in results]
+    print(f"  all          {sum(everything):>3} / {len(everything):<3} "
+          f"{100 * sum(everything) / max(len(everything), 1):5.1f} %")
+
+
+if __name__ == "__main__":
+    main()
