@@ -26,7 +26,7 @@ from kinematics.machine import MachineGeometry
 from slicer import envelope
 from slicer.gcode import Draft, E, MachineSetup, draft, parse_words
 from slicer.hugepages import small_pages
-from slicer.paths import NO_HINTS, LeanHints, SlicingError, plan_print
+from slicer.paths import LEAN, NO_HINTS, LeanHints, SlicingError, plan_print
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.replay import (
@@ -47,7 +47,7 @@ if TYPE_CHECKING:
 T = TypeVar("T")
 log = logging.getLogger(__name__)
 
-REPAIR_ROUNDS = 2  # plans again with hints from the replay, at most (the closed loop)
+REPAIR_ROUNDS = 3  # plans again, leaning, with hints from the replay (the closed loop)
 
 
 class SliceError(ValueError):
@@ -218,7 +218,8 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         def again(hints: LeanHints) -> tuple[SliceResult, np.ndarray]:
             assert plan.decomposition is not None
             t2 = time.perf_counter()
-            replanned = plan_print(plan.decomposition, settings, geometry, head, hints=hints)
+            replanned = plan_print(plan.decomposition, settings, geometry, head, lean=LEAN,
+                                   hints=hints)
             return _finish(mesh, replanned, settings, setup, index, {}, t2, keep_plan, name,
                            seed)
 
@@ -293,11 +294,12 @@ def _repaired(first: tuple[SliceResult, np.ndarray],
               again: Callable[[LeanHints], tuple[SliceResult, np.ndarray]] | None,
               timings: dict[str, float], rounds: int = REPAIR_ROUNDS) -> SliceResult:
     """The closed loop: while the best result so far has walls printed in the air (the
-    replay's unsupported wall layers), plan again with hints at the unsupported walls of
-    every try (:class:`~slicer.paths.LeanHints`: the root leans harder there), at most
-    ``rounds`` times; the best result (fewest such layers, then most walls supported) is
-    kept. A try that fails outright (a collision, a layer in the air) ends the loop. The
-    rounds' seconds are ``timings["repair"]`` and their number ``timings["repair_rounds"]``."""
+    replay's unsupported wall layers), plan again with the root's layers leaning
+    (:mod:`slicer.paths.upright`) and hints at the unsupported walls of every try
+    (:class:`~slicer.paths.LeanHints`: it leans harder there), at most ``rounds`` times;
+    the best result (fewest such layers, then most walls supported) is kept. A try that
+    fails outright (a collision, a layer in the air) ends the loop. The rounds' seconds
+    are ``timings["repair"]`` and their number ``timings["repair_rounds"]``."""
     best, misses = first
     hints = NO_HINTS
     t0 = time.perf_counter()

@@ -135,16 +135,25 @@ def _under(pieces: Sequence[m3.Manifold], cut: Plane) -> bool:
     return True
 
 
-def restack(decomposition: Decomposition, root: int, pieces: Sequence[Piece]
-            ) -> Decomposition:
+def restack(decomposition: Decomposition, root: int, pieces: Sequence[Piece],
+            defer: frozenset[int] = frozenset()) -> tuple[Decomposition, dict[int, int]]:
     """``decomposition`` with sub-part ``root`` replaced by its stacked ``pieces``, numbered
-    ``root, root + 1, ...`` and printed in a row; later sub-parts are renumbered after them,
-    and each child of the root is printed on the piece that holds its base."""
+    ``root, root + 1, ...``; later sub-parts are renumbered after them, and each child of the
+    root is printed on the piece that holds its base.
+
+    The pieces print in a row, then the other sub-parts in their order, except the root's
+    children in ``defer`` (original indices) and everything printed on them: those print
+    right after the piece holding their base, before the pieces above it (a branch that
+    turns back along the root, which the head could not reach past the finished root).
+
+    Returns the decomposition and the original index of every sub-part that is no piece.
+    """
     extra = len(pieces) - 1
     old = {s.index: s for s in decomposition.subparts}
     renum = {k: (k if k < root else k + extra) for k in old if k != root}
     cuts = [p.base for p in pieces[1:] if p.base is not None]
     subs = [_piece(old[root], k + root, p) for k, p in enumerate(pieces)]
+    on_piece: dict[int, int] = {}
     for k, sp in old.items():
         if k == root:
             continue
@@ -152,14 +161,41 @@ def restack(decomposition: Decomposition, root: int, pieces: Sequence[Piece]
         if parent == root and sp.base_plane is not None:
             at = np.asarray(sp.base_plane.point, dtype=float)[None]
             parent = root + sum(1 for c in cuts if c.signed(at)[0] > 0)
+            on_piece[k] = parent
         elif parent is not None:
             parent = renum[parent]
         subs.append(dataclasses.replace(sp, index=renum[k], parent=parent))
+    early = _subtrees(old, defer)
     order: list[int] = []
-    for k in decomposition.order:
-        order += [root + i for i in range(len(pieces))] if k == root else [renum[k]]
-    return dataclasses.replace(decomposition, subparts=sorted(subs, key=lambda s: s.index),
-                               order=order)
+    for i in range(len(pieces)):
+        order.append(root + i)
+        order += [renum[k] for k in decomposition.order
+                  if k in early and on_piece.get(_top(old, k, root), -1) == root + i]
+    order += [renum[k] for k in decomposition.order if k != root and k not in early]
+    dec = dataclasses.replace(decomposition, subparts=sorted(subs, key=lambda s: s.index),
+                              order=order)
+    return dec, {v: k for k, v in renum.items()}
+
+
+def _subtrees(subs: dict[int, Subpart], tops: frozenset[int]) -> set[int]:
+    """The sub-parts ``tops`` and everything printed on them, directly or not."""
+    out = set(tops)
+    grew = True
+    while grew:
+        more = {k for k, sp in subs.items() if sp.parent in out and k not in out}
+        out |= more
+        grew = bool(more)
+    return out
+
+
+def _top(subs: dict[int, Subpart], k: int, root: int) -> int:
+    """The child of ``root`` that sub-part ``k`` is printed on, directly or not (``k`` when
+    it has no such ancestor)."""
+    seen = 0
+    while subs[k].parent not in (root, None) and seen < len(subs):
+        k = int(subs[k].parent)  # type: ignore[arg-type]
+        seen += 1
+    return k
 
 
 def _piece(root: Subpart, index: int, piece: Piece) -> Subpart:

@@ -49,7 +49,15 @@ Direction = Callable[[np.ndarray], np.ndarray]
 
 
 class SlicingError(ValueError):
-    """A sub-part that cannot be sliced; the message names sub-part, layer and obstacle."""
+    """A sub-part that cannot be sliced; the message names sub-part, layer and obstacle.
+
+    ``subpart`` and ``obstacle`` ("printed part", "platform", "the A/C limits", ...) are set
+    when a layer had no acceptable plane (None otherwise)."""
+
+    def __init__(self, message: str, subpart: int | None = None,
+                 obstacle: str | None = None) -> None:
+        super().__init__(message)
+        self.subpart, self.obstacle = subpart, obstacle
 
 
 @dataclass
@@ -271,4 +279,5 @@ def _choose(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray,
         if ang == 0.0:
             break
     what = reason or "the layer-thickness bound"
-    raise SlicingError(f"sub-part {subpart}, layer {index}: no plane clears {what}")
+    raise SlicingError(f"sub-part {subpart}, layer {index}: no plane clears {what}", subpart,
+                       what)

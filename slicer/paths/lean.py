@@ -137,16 +137,22 @@ def lean_problem(column: Column, head: Printhead, turning: Turning,
                        band_turns(column, nb, turning, settings), settings)
 
 
-def solve(problem: LeanProblem, no_jump: frozenset[int] = frozenset()) -> LeanPlan:
+def solve(problem: LeanProblem, no_jump: frozenset[int] = frozenset(),
+          forced: dict[int, np.ndarray] | None = None) -> LeanPlan:
     """The cheapest lean of the problem's layers, with no jump at the bands ``no_jump``
-    (found impossible by :mod:`~slicer.paths.columns`)."""
+    (found impossible by :mod:`~slicer.paths.columns`) and a jump at each band of ``forced``
+    to one of the directions its (n, n) mask allows."""
     costs = problem.costs
     jump_ok = costs.jump_ok.copy()
     for b in no_jump:
         if 0 <= b < len(jump_ok):
             jump_ok[b] = False
+    must = np.zeros(len(jump_ok), dtype=bool)
+    for b, mask in (forced or {}).items():
+        jump_ok[b] &= mask
+        must[b] = True
     allowed = LeanCosts(costs.overhang, costs.allowed, costs.jump_penalty, jump_ok,
-                        costs.upright)
+                        costs.upright, must)
     cells, jumps, total = _cheapest(allowed, problem.grid, problem.limits, problem.settings)
     world = problem.grid.world(problem.column.frame)
     dirs = np.array([world[i, j] for i, j in cells])
@@ -183,6 +189,8 @@ def _cheapest(costs: LeanCosts, grid: DirectionGrid, limits: np.ndarray,
     moves = _Moves(grid)
     for b in range(1, nb):
         best, arg = moves.relax(acc, limits[b], settings.turn_cost)
+        if costs.forced[b]:  # a cut here whatever it costs: no turning past it
+            best = np.full_like(best, np.inf)
         if costs.jump_ok[b].any():
             i0, j0 = np.unravel_index(int(np.argmin(acc)), acc.shape)
             jump = np.where(costs.jump_ok[b], acc[i0, j0] + settings.jump_cost

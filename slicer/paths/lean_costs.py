@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import trimesh
@@ -152,6 +152,8 @@ class LeanCosts:
         A jump there cuts no child's base and is allowed.
     upright : float
         Overhang cost of printing the whole sub-part along the axis.
+    forced : (nb,) bool
+        Bands where the plan must jump (a cut the build order needs).
     """
 
     overhang: np.ndarray
@@ -159,6 +161,11 @@ class LeanCosts:
     jump_penalty: np.ndarray
     jump_ok: np.ndarray
     upright: float
+    forced: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    def __post_init__(self) -> None:
+        if len(self.forced) != len(self.overhang):
+            self.forced = np.zeros(len(self.overhang), dtype=bool)
 
 
 @dataclass(frozen=True)

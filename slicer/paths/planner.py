@@ -14,6 +14,7 @@ the quadrant); here every layer has its own A/C from the two-solution solver.
 from __future__ import annotations
 
 import contextlib
+import logging
 import time
 from concurrent.futures import Executor, Future
 from dataclasses import dataclass, field
@@ -46,6 +47,8 @@ if TYPE_CHECKING:
     from slicer.decompose import Decomposition, Subpart
 
 __all__ = ["SlicingError", "plan_planar", "plan_print"]
+
+log = logging.getLogger(__name__)
 
 OBSTACLE_SPACING = 1.0  # mm between obstacle samples (printed surfaces and outlines)
 TIP_SPACING = 2.0  # mm between nozzle positions checked per layer
@@ -265,7 +268,7 @@ def _child_base(index: int, mesh: trimesh.Trimesh, point: np.ndarray, normal: np
 
 
 def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry: MachineGeometry,
-               head: Printhead | None = None, lean: LeanSettings | None = LEAN,
+               head: Printhead | None = None, lean: LeanSettings | None = None,
                hints: LeanHints = NO_HINTS) -> PrintPlan:
     """Slice a decomposition into a five-axis print plan.
 
@@ -281,7 +284,8 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
         pass ``Printhead.default()`` explicitly to be clear.
     lean : LeanSettings, optional
         How the root's layers lean against its overhangs (:mod:`slicer.paths.upright`);
-        ``None`` keeps them square to the vertical (the paper's slicing).
+        ``None`` (the first try of :func:`slicer.pipeline.slice_model`) keeps them square to
+        the vertical, the paper's slicing.
     hints : LeanHints
         Where earlier tries printed walls in the air.
 
@@ -297,10 +301,36 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
         A layer has no reachable, collision-free plane (names sub-part, layer, obstacle).
     """
     head = Printhead.default() if head is None else head
+    try:
+        return _plan(decomposition, settings, geometry, head, lean, hints, frozenset())
+    except _Blocked as blocked:
+        log.info("%s; printing sub-part %d before the root above it", blocked.error,
+                 blocked.child)
+        try:
+            return _plan(decomposition, settings, geometry, head, lean or LEAN, hints,
+                         frozenset({blocked.child}))
+        except SlicingError:
+            raise blocked.error from None
+
+
+class _Blocked(Exception):
+    """The head could not reach a sub-part printed on the root past the finished root."""
+
+    def __init__(self, error: SlicingError, child: int) -> None:
+        super().__init__(str(error))
+        self.error, self.child = error, child
+
+
+def _plan(decomposition: Decomposition, settings: ProcessSettings, geometry: MachineGeometry,
+          head: Printhead, lean: LeanSettings | None, hints: LeanHints, defer: frozenset[int]
+          ) -> PrintPlan:
+    """:func:`plan_print` with the root's children ``defer`` printed before the root above
+    their base; raises :class:`_Blocked` when a sub-part on the root hit the printed root
+    and nothing was deferred yet."""
     timer = _Timer()
     machine = _Machine(geometry, head)
     source = decomposition
-    leaned = _leaned(decomposition, settings, head, lean, hints)
+    leaned = _leaned(decomposition, settings, head, lean, hints, defer)
     decomposition = leaned.decomposition
     timer.lap("lean")
     subs = {s.index: s for s in decomposition.subparts}
@@ -313,8 +343,14 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
         for k in decomposition.order:  # marching reads the printed state: in build order
             sp = subs[k]
             base = _base_of(sp)
-            layers, poses = _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings,
-                                           machine, timer, leaned.plans.get(k))
+            try:
+                layers, poses = _slice_subpart(k, sp.mesh, (*base, sp.parent is None),
+                                               settings, machine, timer, leaned.plans.get(k))
+            except SlicingError as exc:
+                child = _blocked_child(exc, leaned, defer)
+                if child is None:
+                    raise
+                raise _Blocked(exc, child) from exc
             kids = [_child_base(c.index, c.mesh, c.base_plane.point, c.base_plane.normal, t)
                     for c in decomposition.subparts
                     if c.parent == k and c.base_plane is not None]
@@ -340,8 +376,17 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
                      dict(timer.laps), getattr(decomposition, "base", None), source)
 
 
+def _blocked_child(exc: SlicingError, leaned: Leaned, defer: frozenset[int]) -> int | None:
+    """The root's child (original index) to print before the root above it, when ``exc``
+    is a sub-part printed on the root that hit printed material and nothing is deferred."""
+    if defer or exc.obstacle != "printed part" or exc.subpart is None:
+        return None
+    return leaned.child_of_root(exc.subpart)
+
+
 def _leaned(decomposition: Decomposition, settings: ProcessSettings, head: Printhead,
-            lean: LeanSettings | None, hints: LeanHints) -> Leaned:
+            lean: LeanSettings | None, hints: LeanHints, defer: frozenset[int] = frozenset()
+            ) -> Leaned:
     """The root's lean plan and stacked pieces (:func:`slicer.paths.upright.lean_upright`)."""
     subs = {s.index: s for s in decomposition.subparts}
     root = subs.get(decomposition.order[0]) if decomposition.order else None
@@ -353,7 +398,8 @@ def _leaned(decomposition: Decomposition, settings: ProcessSettings, head: Print
         return _base_centre(_solid(mesh), point, normal, t)[0]
 
     turning = turning_of(t, settings.min_layer_factor, settings.max_layer_share())
-    return lean_upright(decomposition, _solid(root.mesh), centre, turning, head, lean, hints)
+    return lean_upright(decomposition, _solid(root.mesh), centre, turning, head, lean, hints,
+                        defer)
 
 
 def _built(job: Future, timer: _Timer) -> list[Layer]:

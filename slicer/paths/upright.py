@@ -19,8 +19,8 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from slicer.decompose import Decomposition, Subpart
-from slicer.paths.columns import column_of, restack, stack
-from slicer.paths.lean import LeanPlan, Turning, lean_problem, solve
+from slicer.paths.columns import STRADDLE, Piece, column_of, restack, stack
+from slicer.paths.lean import LeanPlan, LeanProblem, Turning, lean_problem, solve
 from slicer.paths.lean_costs import LeanSettings
 from slicer.planes2d import TOL
 from slicer.printhead import Printhead
@@ -31,6 +31,8 @@ MAX_CUT_TRIES = 6  # jumps refused by the column before the plan gives up jumpin
 HINT_RADIUS = 2.5  # mm: faces this near a hinted point weigh more
 HINT_WEIGHT = 10.0  # ... by this factor per round of hints
 HINT_MARGIN = 8.0  # ... and their overhang limits are this many degrees stricter
+FORCED_SLACK = 1.0  # mm: a forced cut passes at most this much higher over the base than
+#                     the lowest allowed cut
 
 
 @dataclass(frozen=True)
@@ -68,11 +70,28 @@ NO_HINTS = LeanHints()
 
 @dataclass
 class Leaned:
-    """The decomposition to slice (the root possibly in stacked pieces) and the lean plan of
-    each of the root's pieces, by sub-part index."""
+    """The decomposition to slice (the root possibly in stacked pieces), the lean plan of
+    each of the root's pieces by sub-part index, and the original index of every other
+    sub-part (empty when nothing was renumbered)."""
 
     decomposition: Decomposition
     plans: dict[int, LeanPlan] = field(default_factory=dict)
+    original: dict[int, int] = field(default_factory=dict)
+
+    def child_of_root(self, index: int) -> int | None:
+        """The original index of the root's child that sub-part ``index`` is printed on
+        (itself included), or None for the root or one of its pieces."""
+        subs = {s.index: s for s in self.decomposition.subparts}
+        pieces = set(self.plans) | {s.index for s in subs.values() if s.parent is None}
+        k = index
+        for _ in range(len(subs)):
+            if k in pieces or k not in subs:
+                return None
+            parent = subs[k].parent
+            if parent is None or parent in pieces:
+                return self.original.get(k, k)
+            k = parent
+        return None
 
 
 #: ``base_centre(mesh, point, normal) -> (3,)``: where a sub-part's axis starts on its base.
@@ -81,7 +100,7 @@ BaseCentre = Callable[[trimesh.Trimesh, np.ndarray, np.ndarray], np.ndarray]
 
 def lean_upright(decomposition: Decomposition, solid: m3.Manifold, base_centre: BaseCentre,
                  turning: Turning, head: Printhead, settings: LeanSettings | None = None,
-                 hints: LeanHints = NO_HINTS) -> Leaned:
+                 hints: LeanHints = NO_HINTS, defer: frozenset[int] = frozenset()) -> Leaned:
     """Plan the lean of the root (the sub-part on the platform) and cut it at its jumps.
 
     Parameters
@@ -97,6 +116,10 @@ def lean_upright(decomposition: Decomposition, solid: m3.Manifold, base_centre: 
     settings : LeanSettings, optional
         ``None`` leaves the root upright (the paper's slicing).
     hints : LeanHints
+    defer : frozenset of int
+        Children of the root (indices of ``decomposition``) to print before the root above
+        their base: the root is cut just above it (a forced jump) and the child with all
+        printed on it goes between the pieces (:func:`~slicer.paths.columns.restack`).
 
     Returns
     -------
@@ -110,19 +133,53 @@ def lean_upright(decomposition: Decomposition, solid: m3.Manifold, base_centre: 
                          np.array([0.0, 0.0, 1.0]))
     column = column_of(root, kids, solid, origin, np.eye(3), hints.weights(root.mesh))
     problem = lean_problem(column, head, turning, settings)
+    bases = [column.child_bases[i] for i, k in enumerate(kids) if k.index in defer]
     refused: set[int] = set()
-    plan = solve(problem)
     for _ in range(MAX_CUT_TRIES):
+        forced = _forced(problem, bases, refused)
+        if len(forced) < len(defer):
+            return Leaned(decomposition)  # no cut above a deferred child's base
+        plan = solve(problem, frozenset(refused), forced)
         if not plan.leans:
             return Leaned(decomposition)
         pieces, bad = stack(column, plan)
         if bad is None:
-            return _leaned(decomposition, root, pieces, plan)
+            return _leaned(decomposition, root, pieces, plan, defer)
         refused.add(bad)
-        plan = solve(problem, frozenset(refused))
-    plan = solve(problem, frozenset(range(len(plan.directions))))
-    pieces, _ = stack(column, plan)
-    return _leaned(decomposition, root, pieces, plan) if plan.leans else Leaned(decomposition)
+    forced = _forced(problem, bases, refused)
+    if len(forced) < len(defer):
+        return Leaned(decomposition)
+    plan = solve(problem, frozenset(range(len(problem.limits))) - set(forced), forced)
+    pieces, bad = stack(column, plan)
+    if bad is not None or not plan.leans:
+        return Leaned(decomposition)
+    return _leaned(decomposition, root, pieces, plan, defer)
+
+
+def _forced(problem: LeanProblem, bases: list[np.ndarray], refused: set[int]
+            ) -> dict[int, np.ndarray]:
+    """For each base (points, (k, 3)), the first band above it and not ``refused`` where
+    some allowed cut leaves it all ``STRADDLE`` mm below, with the mask of those cuts'
+    directions, (n, n) bool."""
+    col, band = problem.column, problem.settings.band
+    dirs = problem.grid.world(col.frame).reshape(-1, 3)
+    out: dict[int, np.ndarray] = {}
+    for pts in bases:
+        if not len(pts):
+            continue
+        at = ((np.asarray(pts) - col.origin) @ dirs.T) / (dirs @ col.axis)[None, :]
+        top = at.max(axis=0).reshape(problem.grid.inside.shape)  # (n, n)
+        first = int(np.floor((float(top.min()) + STRADDLE) / band - 0.5)) + 1
+        for b in range(max(first, 1), len(problem.limits)):
+            if b in refused:
+                continue
+            gap = (b + 0.5) * band - STRADDLE - top  # > 0: the base lies under the cut
+            mask = problem.costs.jump_ok[b] & (gap > 0)
+            if mask.any():  # the cuts that pass lowest over the base: the piece under the
+                # cut ends low beside the child, whose head must clear it
+                out[b] = mask & (gap <= float(gap[mask].min()) + FORCED_SLACK)
+                break
+    return out
 
 
 def _root(decomposition: Decomposition) -> Subpart | None:
@@ -132,14 +189,19 @@ def _root(decomposition: Decomposition) -> Subpart | None:
     return first if first is not None and first.parent is None else None
 
 
-def _leaned(decomposition: Decomposition, root: Subpart, pieces: Sequence, plan: LeanPlan
-            ) -> Leaned:
+def _leaned(decomposition: Decomposition, root: Subpart, pieces: Sequence[Piece],
+            plan: LeanPlan, defer: frozenset[int]) -> Leaned:
     """The decomposition with the root in ``pieces`` and ``plan`` for each."""
     tilt = plan.tilt()
-    log.info("root leans up to %.0f° (overhang %.1f → %.1f mm² priced), %d stacked piece(s)",
-             float(tilt.max()), plan.upright, plan.cost, len(pieces))
-    dec = restack(decomposition, root.index, pieces) if len(pieces) > 1 else decomposition
-    return Leaned(dec, {root.index + k: plan for k in range(len(pieces))})
+    log.info("root leans up to %.0f° (overhang %.1f → %.1f mm² priced), %d stacked piece(s)%s",
+             float(tilt.max()), plan.upright, plan.cost, len(pieces),
+             f", sub-part(s) {sorted(defer)} printed before the pieces above them"
+             if defer else "")
+    if len(pieces) == 1:
+        same = {s.index: s.index for s in decomposition.subparts if s.index != root.index}
+        return Leaned(decomposition, {root.index: plan}, same)
+    dec, original = restack(decomposition, root.index, pieces, defer)
+    return Leaned(dec, {root.index + k: plan for k in range(len(pieces))}, original)
 
 
 def turning_of(t: float, f_min: float, f_max: float) -> Turning:
