@@ -292,20 +292,24 @@ def _with_grid(index: Future[ModelIndex], settings: ProcessSettings) -> ModelInd
 
 def _repaired(first: tuple[SliceResult, np.ndarray],
               again: Callable[[LeanHints], tuple[SliceResult, np.ndarray]] | None,
-              timings: dict[str, float], rounds: int = REPAIR_ROUNDS) -> SliceResult:
+              timings: dict[str, float], rounds: int | None = None) -> SliceResult:
     """The closed loop: while the best result so far has walls printed in the air (the
     replay's unsupported wall layers), plan again with the root's layers leaning
     (:mod:`slicer.paths.upright`) and hints at the unsupported walls of every try
-    (:class:`~slicer.paths.LeanHints`: it leans harder there), at most ``rounds`` times;
+    (:class:`~slicer.paths.LeanHints`: it leans harder there; the first lean takes none),
+    at most ``rounds`` times;
     the best result (fewest such layers, then most walls supported) is kept. A try that
     fails outright (a collision, a layer in the air) ends the loop. The rounds' seconds
-    are ``timings["repair"]`` and their number ``timings["repair_rounds"]``."""
+    are ``timings["repair"]`` and their number ``timings["repair_rounds"]``; ``rounds``
+    defaults to :data:`REPAIR_ROUNDS`."""
     best, misses = first
     hints = NO_HINTS
     t0 = time.perf_counter()
     done = 0
+    rounds = REPAIR_ROUNDS if rounds is None else rounds
     while again is not None and done < rounds and _bad_walls(best) and len(misses):
-        hints = hints.more(misses)
+        if done:  # the first lean has no hints: the upright try's misses are not its own
+            hints = hints.more(misses)
         done += 1
         try:
             result, misses = again(hints)

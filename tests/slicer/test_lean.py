@@ -1,0 +1,234 @@
+"""The lean plan of an upright sub-part: its price, its dynamic programme, its stacked pieces.
+
+Invariants on seeded random price tables (the path's cost is what it reports, its turns stay
+within the bound, no random feasible path is cheaper, jumps only where allowed) and on parts
+built with manifold3d (a column leaning past 45° is leaned towards, a cut keeps the volume and
+leaves every earlier piece under it, a deferred child prints right after its piece).
+"""
+
+from __future__ import annotations
+
+import math
+
+import manifold3d as m3
+import numpy as np
+import pytest
+
+from slicer.decompose import Decomposition, Plane, Subpart
+from slicer.mesh import to_trimesh
+from slicer.paths.columns import column_of, restack, stack
+from slicer.paths.lean import LeanPlan, Turning, _cheapest, lean_problem, solve
+from slicer.paths.lean_costs import DirectionGrid, LeanCosts, LeanSettings, hinge
+from slicer.planes2d import slicing_solid
+from slicer.printhead import Printhead
+
+SMALL = LeanSettings(max_tilt=20.0, step_deg=4.0)
+TURNING = Turning(0.2, 0.5, 1.5, 0.9)
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> float:
+    return math.degrees(math.acos(float(np.clip(a @ b, -1.0, 1.0))))
+
+
+def test_the_grid_covers_the_cap_around_the_axis() -> None:
+    grid = DirectionGrid.make(50.0, 2.0)
+    k = grid.centre
+    assert np.allclose(grid.local[k, k], [0.0, 0.0, 1.0])
+    assert np.allclose(np.linalg.norm(grid.local, axis=-1), 1.0)
+    tilt = grid.tilt[grid.inside]
+    assert tilt.max() <= 50.0 + 1e-9 and tilt.max() > 48.0
+    assert not (grid.tilt[~grid.inside] <= 50.0 - 1e-9).any()
+
+
+@pytest.mark.parametrize("soft, hard", [(35.0, 45.0), (40.0, 50.0)])
+def test_the_hinge_is_nothing_below_soft_everything_past_hard(soft: float, hard: float) -> None:
+    over = np.linspace(0.0, 90.0, 181)
+    share = hinge(-np.sin(np.radians(over)), soft, hard)
+    assert (share[over <= soft] == 0.0).all() and (share[over >= hard] == 1.0).all()
+    assert (np.diff(share) >= 0.0).all()
+
+
+def _random_costs(rng: np.random.Generator, nb: int, grid: DirectionGrid,
+                  jumps: bool = False) -> LeanCosts:
+    n = grid.inside.shape[0]
+    over = rng.exponential(1.0, size=(nb, n, n)) * (rng.random((nb, n, n)) < 0.6)
+    allowed = np.broadcast_to(grid.inside, (nb, n, n)).copy()
+    jump_ok = allowed & jumps
+    return LeanCosts(over, allowed, rng.random((nb, n, n)), jump_ok, float(over[:, 0, 0].sum()))
+
+
+def _path_cost(costs: LeanCosts, grid: DirectionGrid, cells: list[tuple[int, int]],
+               jumps: list[int], s: LeanSettings) -> float:
+    total = 0.0
+    tilt = grid.tilt
+    for b, (i, j) in enumerate(cells):
+        total += costs.overhang[b, i, j] + s.tilt_cost * tilt[i, j]
+        if b == 0:
+            continue
+        if b in jumps:
+            total += s.jump_cost + costs.jump_penalty[b, i, j]
+        else:
+            pi, pj = cells[b - 1]
+            total += s.turn_cost * _angle(grid.local[pi, pj], grid.local[i, j])
+    return total
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_cheapest_path_costs_what_it_says_and_turns_within_the_bound(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    grid = DirectionGrid.make(SMALL.max_tilt, SMALL.step_deg)
+    nb = 12
+    costs = _random_costs(rng, nb, grid)
+    limits = rng.uniform(4.0, 9.0, size=nb)
+    cells, jumps, total = _cheapest(costs, grid, limits, SMALL)
+    assert jumps == [] and cells[0] == (grid.centre, grid.centre)
+    assert total == pytest.approx(_path_cost(costs, grid, cells, jumps, SMALL))
+    cos = np.cos(np.radians(grid.tilt))
+    for b in range(1, nb):
+        (pi, pj), (i, j) = cells[b - 1], cells[b]
+        assert grid.inside[i, j]
+        assert _angle(grid.local[pi, pj], grid.local[i, j]) <= limits[b] * cos[i, j] + 1e-6
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_no_random_feasible_path_is_cheaper(seed: int) -> None:
+    rng = np.random.default_rng(100 + seed)
+    grid = DirectionGrid.make(SMALL.max_tilt, SMALL.step_deg)
+    nb = 10
+    costs = _random_costs(rng, nb, grid)
+    limits = np.full(nb, 9.0)
+    _, _, best = _cheapest(costs, grid, limits, SMALL)
+    n = grid.inside.shape[0]
+    cos = np.cos(np.radians(grid.tilt))
+    for _ in range(300):  # random walks that keep within the bound
+        cells = [(grid.centre, grid.centre)]
+        for b in range(1, nb):
+            pi, pj = cells[-1]
+            options = [(i, j) for i in range(max(0, pi - 2), min(n, pi + 3))
+                       for j in range(max(0, pj - 2), min(n, pj + 3))
+                       if grid.inside[i, j] and _angle(grid.local[pi, pj], grid.local[i, j])
+                       <= limits[b] * cos[i, j]]
+            cells.append(options[int(rng.integers(len(options)))])
+        assert _path_cost(costs, grid, cells, [], SMALL) >= best - 1e-9
+
+
+def test_a_jump_is_taken_only_where_allowed_and_when_it_pays() -> None:
+    grid = DirectionGrid.make(SMALL.max_tilt, SMALL.step_deg)
+    nb, n = 10, grid.inside.shape[0]
+    over = np.full((nb, n, n), 50.0)
+    over[:5] = 0.0  # upright is free low down ...
+    over[5:, 1, n // 2] = 0.0  # ... then only a cell 19° off is
+    allowed = np.broadcast_to(grid.inside, (nb, n, n)).copy()
+    jump_ok = np.zeros_like(allowed)
+    jump_ok[4:6] = allowed[4:6]
+    costs = LeanCosts(over, allowed, np.zeros_like(over), jump_ok, 0.0)
+    cells, jumps, total = _cheapest(costs, grid, np.full(nb, 0.5), SMALL)
+    assert grid.inside[1, n // 2]
+    assert jumps in ([4], [5]) and cells[-1] == (1, n // 2)
+    assert total < 10.0
+    no_jump = LeanCosts(over, allowed, np.zeros_like(over), np.zeros_like(allowed), 0.0)
+    _, jumps, stuck = _cheapest(no_jump, grid, np.full(nb, 0.5), SMALL)
+    assert jumps == [] and stuck > 100.0
+
+
+def _rod_on_column(elevation: float) -> m3.Manifold:
+    """A disc, a round column, and a solid rod leaving it at z = 15 towards +X
+    ``elevation`` degrees above the horizontal (its underside overhangs 90 − elevation)."""
+    el = math.radians(elevation)
+    rod = m3.Manifold.cylinder(16.0, 3.0, 3.0, 32).rotate((0.0, 90.0 - elevation, 0.0))
+    return (m3.Manifold.cylinder(2.0, 12.0, 12.0, 48)
+            + m3.Manifold.cylinder(40.0, 6.0, 6.0, 48)
+            + rod.translate((0.0, 0.0, 15.0)) + m3.Manifold.sphere(3.0, 32).translate(
+                (16.0 * math.cos(el), 0.0, 15.0 + 16.0 * math.sin(el))))
+
+
+def _subpart(solid: m3.Manifold, index: int = 0, parent: int | None = None,
+             base: Plane | None = None) -> Subpart:
+    mesh = to_trimesh(solid)
+    return Subpart(index, parent, mesh, base, 0.0,
+                   np.array([0.0, 0.0, 1.0]) if base is None else base.normal)
+
+
+def _problem(solid: m3.Manifold, kids: list[Subpart] | None = None):
+    root = _subpart(solid)
+    origin = np.array([0.0, 0.0, 0.0])
+    column = column_of(root, kids or [], slicing_solid(root.mesh), origin, np.eye(3))
+    return column, lean_problem(column, Printhead.default(), TURNING)
+
+
+def test_a_rod_overhanging_past_the_limit_is_leaned_towards() -> None:
+    column, problem = _problem(_rod_on_column(25.0))
+    plan = solve(problem)
+    assert problem.costs.upright > 10.0  # its underside faces 65° off the vertical
+    assert plan.cost < 0.3 * plan.upright
+    at_rod = plan.direction(np.array([16.0, 20.0]))  # where the rod leaves the column
+    assert (at_rod[:, 0] > math.sin(math.radians(12.0))).all()  # towards +X, 12° or more
+    assert abs(at_rod[:, 1]).max() < 0.1
+
+
+def test_a_steep_rod_leaves_the_column_upright() -> None:
+    _, problem = _problem(_rod_on_column(60.0))  # its underside faces 30° off: printable
+    plan = solve(problem)
+    assert not plan.leans and plan.cost < 1e-3  # mm²: a sliver of the sphere at its tip
+
+
+def _plan_with_jump(column, band: int, direction: np.ndarray) -> LeanPlan:
+    nb = len(column.profile[0]) // 4 + 2
+    dirs = np.tile([0.0, 0.0, 1.0], (nb, 1))
+    dirs[band:] = direction / np.linalg.norm(direction)
+    return LeanPlan(column.origin, column.axis, 2.0, dirs, (band,), 0.0, 0.0)
+
+
+def test_a_cut_keeps_the_volume_and_leaves_the_lower_piece_under_it() -> None:
+    tube = m3.Manifold.cylinder(40.0, 10.0, 10.0, 48) - m3.Manifold.cylinder(
+        40.0, 8.0, 8.0, 48).translate((0.0, 0.0, 3.0))
+    column, _ = _problem(tube)
+    plan = _plan_with_jump(column, 8, np.array([0.5, 0.0, 1.0]))
+    pieces, bad = stack(column, plan)
+    assert bad is None and len(pieces) == 2
+    assert pieces[0].base is None and pieces[1].base is not None
+    assert sum(p.mesh.volume for p in pieces) == pytest.approx(tube.volume(), rel=1e-6)
+    assert all(p.mesh.is_watertight for p in pieces)
+    cut = pieces[1].base
+    assert cut.signed(pieces[0].mesh.vertices).max() <= 1e-3
+    assert cut.signed(pieces[1].mesh.vertices).min() >= -1e-3
+
+
+def test_a_cut_through_a_childs_base_is_refused() -> None:
+    tube = m3.Manifold.cylinder(40.0, 10.0, 10.0, 48)
+    child_solid = m3.Manifold.cylinder(8.0, 3.0, 3.0, 24).rotate((0.0, 90.0, 0.0)).translate(
+        (10.0, 0.0, 17.0))
+    base = Plane(np.array([10.0, 0.0, 17.0]), np.array([1.0, 0.0, 0.0]))
+    kid = _subpart(child_solid, 1, 0, base)
+    column, _ = _problem(tube, [kid])
+    plan = _plan_with_jump(column, 8, np.array([0.0, 0.0, 1.0]))  # a cut at z = 17
+    pieces, bad = stack(column, plan)
+    assert pieces == [] and bad == 8
+
+
+def test_restacking_numbers_pieces_first_and_prints_a_deferred_child_on_its_piece() -> None:
+    tube = m3.Manifold.cylinder(40.0, 10.0, 10.0, 48)
+    low_kid = _subpart(m3.Manifold.cube((4.0, 4.0, 4.0)).translate((10.0, -2.0, 8.0)), 1, 0,
+                       Plane(np.array([10.0, 0.0, 10.0]), np.array([1.0, 0.0, 0.0])))
+    high_kid = _subpart(m3.Manifold.cube((4.0, 4.0, 4.0)).translate((10.0, -2.0, 30.0)), 2,
+                        0, Plane(np.array([10.0, 0.0, 32.0]), np.array([1.0, 0.0, 0.0])))
+    grandkid = _subpart(m3.Manifold.cube((2.0, 2.0, 2.0)).translate((14.0, -1.0, 9.0)), 3,
+                        1, Plane(np.array([14.0, 0.0, 10.0]), np.array([1.0, 0.0, 0.0])))
+    root = _subpart(tube)
+    dec = Decomposition(np.eye(4), [root, low_kid, high_kid, grandkid], [0, 1, 2, 3],
+                        float(tube.volume()), {}, 1, 1)
+    column, _ = _problem(tube, [low_kid, high_kid])
+    pieces, bad = stack(column, _plan_with_jump(column, 10, np.array([0.0, 0.0, 1.0])))
+    assert bad is None and len(pieces) == 2
+    plain, original = restack(dec, 0, pieces)
+    assert plain.order == [0, 1, 2, 3, 4]
+    parents = {s.index: s.parent for s in plain.subparts}
+    assert parents == {0: None, 1: 0, 2: 0, 3: 1, 4: 2}
+    assert original == {2: 1, 3: 2, 4: 3}
+    early, _ = restack(dec, 0, pieces, frozenset({1}))
+    assert early.order == [0, 2, 4, 1, 3]  # the low child and its child before the top piece
+    seen: set[int] = set()
+    parents = {s.index: s.parent for s in early.subparts}
+    for k in early.order:
+        assert parents[k] is None or parents[k] in seen
+        seen.add(k)
