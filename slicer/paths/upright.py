@@ -31,6 +31,8 @@ MAX_CUT_TRIES = 6  # jumps refused by the column before the plan gives up jumpin
 HINT_RADIUS = 2.5  # mm: faces this near a hinted point weigh more
 HINT_WEIGHT = 10.0  # ... by this factor per round of hints
 HINT_MARGIN = 8.0  # ... and their overhang limits are this many degrees stricter
+HINT_SPACING = 0.5  # mm between the surface samples that find the faces near a hint
+HINT_SAMPLES = 200_000  # ... at most
 FORCED_SLACK = 1.0  # mm: a forced cut passes at most this much higher over the base than
 #                     the lowest allowed cut
 
@@ -54,8 +56,7 @@ class LeanHints:
         for pts in self.rounds:
             if not len(pts):
                 continue
-            near = tree.query_ball_point(np.asarray(pts, dtype=float), r=HINT_RADIUS)
-            hit = np.unique(np.concatenate([np.asarray(n, dtype=np.int64) for n in near]))
+            hit = _near_faces(mesh, tree, np.asarray(pts, dtype=float))
             w[hit] *= HINT_WEIGHT
             margin[hit] += HINT_MARGIN
         return w, margin
@@ -66,6 +67,19 @@ class LeanHints:
 
 
 NO_HINTS = LeanHints()
+
+
+def _near_faces(mesh: trimesh.Trimesh, tree: cKDTree, points: np.ndarray) -> np.ndarray:
+    """Faces of ``mesh`` near ``points`` (k, 3): those of the surface samples within
+    ``HINT_RADIUS`` (a coarse mesh's faces are larger than the radius: their centres may lie
+    far from the point) and every face centred within it."""
+    count = int(min(HINT_SAMPLES, max(1000, mesh.area / HINT_SPACING**2)))
+    samples, faces = trimesh.sample.sample_surface(mesh, count, seed=0)
+    near = cKDTree(samples).query_ball_point(points, r=HINT_RADIUS)
+    centred = tree.query_ball_point(points, r=HINT_RADIUS)
+    found = [faces[np.asarray(n, dtype=np.int64)] for n in near]
+    return np.unique(np.concatenate([np.zeros(0, dtype=np.int64), *found]
+                                    + [np.asarray(n, dtype=np.int64) for n in centred]))
 
 
 @dataclass

@@ -301,3 +301,23 @@ def test_the_first_skin_crosses_the_sparse_lines_beneath():
         below, here = direction(layers[i - 1], "infill"), direction(layers[i], kind)
         assert below is not None and here is not None
         assert abs(float(here @ below)) < 1e-6, (i, kind)
+
+
+def test_a_skin_bridging_sparse_infill_under_the_top_holds_its_walls():
+    """The first skin lies within the wall distance of the top: its samples between the
+    sparse lines fail the strict rule but bridge, and the wall figures count them held."""
+    judged, ok, bridge, s = _verdicts(sparse_box(SPACING), box_mesh())
+    index = replay.model_index(box_mesh(), W)
+    wall = replay._wall(index, s.p[judged], W)[1]
+    skin = s.layer[judged] == FIRST_SKIN
+    assert (skin & wall & ~ok & bridge).sum() > 10
+    rep = _replay(sparse_box(SPACING), box_mesh())
+    assert rep.wall_supported == 1.0 and rep.unsupported_wall_layers == []
+
+
+def test_a_ledge_keeps_its_walls_in_the_air():
+    """The slab jutting beyond the box bridges nothing (its footprint is outside the layer
+    beneath): its wall samples stay unsupported in the wall figures."""
+    rep = _replay(sparse_box(SPACING, LEDGE, SMALL), box_mesh(LEDGE, SMALL))
+    assert rep.wall_supported < 0.99
+    assert f"sub-part 0 layer {FIRST_SKIN}" in rep.unsupported_wall_layers
