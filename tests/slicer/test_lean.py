@@ -157,7 +157,7 @@ def _problem(solid: m3.Manifold, kids: list[Subpart] | None = None):
 
 
 def test_a_rod_overhanging_past_the_limit_is_leaned_towards() -> None:
-    column, problem = _problem(_rod_on_column(25.0))
+    _, problem = _problem(_rod_on_column(25.0))
     plan = solve(problem)
     assert problem.costs.upright > 10.0  # its underside faces 65° off the vertical
     assert plan.cost < 0.3 * plan.upright
