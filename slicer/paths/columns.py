@@ -10,9 +10,11 @@ plan solved again without it.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
 import manifold3d as m3
 import numpy as np
@@ -24,6 +26,8 @@ from slicer.mesh import to_manifold, to_trimesh
 from slicer.paths.lean import LeanPlan
 from slicer.paths.lean_costs import Column
 from slicer.planes2d import section
+
+T = TypeVar("T")
 
 PROFILE_STEP = 0.5  # mm between the sections that measure the part's extent about its axis
 BASE_TOL = 1e-3  # mm: a child's mesh vertex this close to its base plane lies on the base
@@ -164,7 +168,7 @@ def restack(decomposition: Decomposition, root: int, pieces: Sequence[Piece],
             on_piece[k] = parent
         elif parent is not None:
             parent = renum[parent]
-        subs.append(dataclasses.replace(sp, index=renum[k], parent=parent))
+        subs.append(_with(sp, index=renum[k], parent=parent))
     early = _subtrees(old, defer)
     order: list[int] = []
     for i in range(len(pieces)):
@@ -172,8 +176,7 @@ def restack(decomposition: Decomposition, root: int, pieces: Sequence[Piece],
         order += [renum[k] for k in decomposition.order
                   if k in early and on_piece.get(_top(old, k, root), -1) == root + i]
     order += [renum[k] for k in decomposition.order if k != root and k not in early]
-    dec = dataclasses.replace(decomposition, subparts=sorted(subs, key=lambda s: s.index),
-                              order=order)
+    dec = _with(decomposition, subparts=sorted(subs, key=lambda s: s.index), order=order)
     return dec, {v: k for k, v in renum.items()}
 
 
@@ -201,7 +204,17 @@ def _top(subs: dict[int, Subpart], k: int, root: int) -> int:
 def _piece(root: Subpart, index: int, piece: Piece) -> Subpart:
     """A stacked piece as a sub-part: the lowest keeps the root's place on the platform."""
     if piece.base is None:
-        return dataclasses.replace(root, index=index, mesh=piece.mesh)
-    return dataclasses.replace(root, index=index, parent=index - 1, mesh=piece.mesh,
-                               base_plane=piece.base, base_area=0.0,
-                               build_direction=piece.base.normal.copy())
+        return _with(root, index=index, mesh=piece.mesh)
+    return _with(root, index=index, parent=index - 1, mesh=piece.mesh, base_plane=piece.base,
+                 base_area=0.0, build_direction=piece.base.normal.copy())
+
+
+def _with(obj: T, **changes: object) -> T:
+    """A copy of ``obj`` with ``changes``: a dataclass by :func:`dataclasses.replace`, any
+    other record (a test's namespace) by a shallow copy."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return dataclasses.replace(obj, **changes)
+    out = copy.copy(obj)
+    for name, value in changes.items():
+        setattr(out, name, value)
+    return out
