@@ -44,10 +44,12 @@ def slice_one(task: tuple[str, str, float]) -> dict[str, object]:
 
     kind, source, t = task
     part: trimesh.Trimesh | str = source
+    name = Path(source).stem
     if source.startswith("variant:"):
-        part = hard_variant(int(source.split(":")[1])).mesh()
+        variant = hard_variant(int(source.split(":")[1]))
+        part, name = variant.mesh(), variant.name
     t0 = time.perf_counter()
-    out: dict[str, object] = {"kind": kind, "name": Path(source).stem, "t": t}
+    out: dict[str, object] = {"kind": kind, "name": name, "t": t}
     try:
         res = slice_model(part, ProcessSettings(layer_height=t), MachineGeometry())
     except (SliceError, SlicingError, DecompositionError, MeshError) as exc:
