@@ -20,13 +20,23 @@ HTTP/WebSocket API of issue 13 (on the same loop and endpoint registry):
 - :class:`Outbox`: what one connection has queued to send. Replies always go (the connection
   is not read meanwhile); a pushed event that finds the queue full drops the subscriber, with
   a logged reason, and counts as dropped with those still queued.
-- :class:`Turns`: requests start one per pass of the event loop, the connection served least
-  lately first. Between two requests the loop polls its descriptors, the serial port's among
-  them, so clients, however many and however fast, delay a reply of the firmware by one
-  request at most, and a client asking now and then goes before those that never stop.
+- :class:`Turns`: requests start one per pass of the event loop, and take a share of its
+  time while others wait. Between two requests the loop polls its descriptors, the serial
+  port's among them, so clients, however many and however fast, delay a reply of the
+  firmware by one request at most, and a client that paused before asking goes before those
+  that ask again the moment they have their answer.
+- :class:`ReadPace`: the bytes of long requests (past their first 64 KiB) come in at a
+  bounded rate across connections, so frames over the limit sent again and again cost the
+  loop little.
 
-:class:`Limits` holds the pieces the API's listeners share (the gate, the budget, the turns
-and the counters the metrics export); the metrics endpoint has a gate of its own.
+:class:`Limits` holds the pieces the API's listeners share (the gate, the budget, the turns,
+the pace and the counters the metrics export); the metrics endpoint has a gate of its own and
+shares the turns. The HTTP/WebSocket API takes the same: its listening socket served by a
+:class:`Listener` on :attr:`Limits.gate` (aiohttp's ``web.Server`` is a protocol factory),
+``max_request_bytes`` as its largest body and WebSocket message (reserved in the budget while
+held), the idle timeout as its keep-alive timeout and an :class:`IdleTimer` for a WebSocket
+without subscription, an :class:`Outbox` for each WebSocket's events, and a turn
+(:meth:`Turns.take`) before each request it dispatches.
 """
 
 from __future__ import annotations
