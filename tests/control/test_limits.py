@@ -252,3 +252,25 @@ async def test_accept_out_of_files_pauses_and_logs_once(tmp_path, caplog):
     assert len(lines) == 1 and not lines[0].exc_info
     assert "LimitNOFILE" in lines[0].getMessage()
     assert 2 <= sock.accepts <= 3 and listener.accept_failures == sock.accepts
+
+
+async def test_hostctl_says_why_it_was_refused(tmp_path):
+    """hostctl at the cap: the daemon's reason, exit 4, whether its request went out or not."""
+    from hostd.cli.client import Client, RpcFailure
+    from hostd.cli.errors import EXIT_REFUSED
+
+    server, _ = await serve(tmp_path, max_connections=1)
+    async with asyncio.timeout(10):
+        r, w = await connect(server)
+        assert (await ask(r, w))["result"] == "z"
+
+        def call() -> RpcFailure:
+            with Client(str(server.path)) as c, pytest.raises(RpcFailure) as caught:
+                c.call("echo", text="z")
+            return caught.value
+
+        refused = await asyncio.to_thread(call)
+        assert refused.rpc_code == -32009 and refused.code == EXIT_REFUSED
+        assert "daemon.max_connections (1)" in str(refused)
+        w.close()
+        await server.close()
