@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import base64
 import json
 import math
 import os
@@ -64,6 +65,7 @@ TARGETS = {"idle_rss_mb": 80.0, "watch_cpu_pct": 10.0, "stream_cpu_pct": 10.0,
 BAUD = 250000
 RX_BUFFER = LinkSettings().rx_buffer_bytes  # hostd's default (Marlin's 128-byte ring)
 READY = "ready (socket"
+PART_BYTES = 3 << 16  # hostctl's parts
 SETTLE_S = 2.0  # idle time before the RSS figure
 
 
@@ -106,6 +108,14 @@ def cpu_seconds(pid: int) -> float:
 class Client:
     def __init__(self, r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
         self.r, self.w = r, w
+
+    async def submit(self, name: str, data: bytes) -> dict:
+        """Queue a file sent in parts, as hostctl sends one over 192 KiB (a request is at
+        most daemon.max_request_bytes)."""
+        for offset in range(0, len(data), PART_BYTES):
+            part = base64.b64encode(data[offset:offset + PART_BYTES]).decode()
+            await self.call("job.upload", data=part, offset=offset)
+        return await self.call("job.submit", name=name)
 
     async def call(self, method: str, **params: object) -> dict:
         self.w.write(json.dumps({"jsonrpc": "2.0", "id": 1, "method": method,
@@ -177,7 +187,7 @@ async def stream_and_measure(c: Client, sock: Path, pids: dict[str, int],
     text = synthetic_gcode(subparts=3, layers=40, per_layer=200)
     watcher = Client(*await asyncio.open_unix_connection(str(sock)))
     await watcher.call("events.subscribe", events=WATCHED)
-    job = await c.call("job.submit", name="bench.gcode", data=text, encoding="text")
+    job = await c.submit("bench.gcode", text.encode())
     started = asyncio.Event()
     uploading = asyncio.create_task(submit_when(started, sock, upload)) if upload else None
     async with asyncio.timeout(300):  # the job streams in ~40 s: no events means a fault

@@ -16,8 +16,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import errno
+import gc
 import logging
 import os
+import resource
 import signal
 import socket
 import sys
@@ -29,6 +31,8 @@ from typing import Any
 from hostd import __version__
 from hostd.config import Config
 from hostd.control.endpoints import build_registry
+from hostd.control.limits import Limits, limit_settings_from_config
+from hostd.control.rpc import Encoded, encoded
 from hostd.control.server import ControlError, ControlServer
 from hostd.errors import PrinterBusy
 from hostd.events import EventBus
@@ -52,7 +56,11 @@ log = logging.getLogger("hostd")
 EXIT_OK = 0
 EXIT_FAILED = 1
 TEMPERATURE_INTERVAL = 2.0  # s between temperature queries (and reports)
-MESSAGE_OVERHEAD = 64 * 1024  # JSON-RPC envelope around a base64 upload
+FD_RESERVE = 128
+"""Open files beside the connection caps: the port, the database, uploads, worker pipes."""
+STATUS_TTL_S = 0.02
+"""Longest time ``printer.status`` answers with the same encoded snapshot (none outlives an
+event): a flood of status requests costs one snapshot per period, not one each."""
 
 
 class DaemonError(Exception):
@@ -117,10 +125,12 @@ class Daemon:
         self.worker: SlicingWorker | None = None
         self.store: JobStore | None = None
         self.server: ControlServer | None = None
+        self.limits = Limits(limit_settings_from_config(config))
         self.metrics: Any = None
         self._tasks: list[asyncio.Task[None]] = []
         self._jobs: JobManager | None = None
         self._status_line = ""
+        self._status_json: tuple[Encoded, float, int] | None = None  # (text, when, events)
         self._lock = StateLock(self.state_dir)
 
     @property
@@ -137,6 +147,7 @@ class Daemon:
         return int(self.config["daemon.max_upload_bytes"])
 
     async def start(self) -> None:
+        check_descriptors(self.config)
         try:
             self.state_dir.mkdir(parents=True, exist_ok=True)
             self._lock.acquire()
@@ -151,9 +162,8 @@ class Daemon:
                                 self.bus, stream_settings_from_config(self.config),
                                 envelope_from_config(self.config.data), printer=self.link,
                                 hold_after_print=self.config["daemon.next_job"] == "after_clear")
-        self.server = ControlServer(
-            self.config["daemon.socket"], build_registry(self), self.bus,
-            max_message=self.config["daemon.max_upload_bytes"] * 4 // 3 + MESSAGE_OVERHEAD)
+        self.server = ControlServer(self.config["daemon.socket"], build_registry(self),
+                                    self.bus, self.limits)
         try:
             await self.server.start(_activated_socket())
         except ControlError as exc:
@@ -166,6 +176,7 @@ class Daemon:
             self._tasks.append(asyncio.create_task(self._link_supervisor(), name="link"))
         self.bus.subscribe(lambda name, data: self._notify_status(),
                            ("job.state", "printer.state"))
+        gc.freeze()  # what starting made lives on: later collections need not walk it
         notify("READY=1\nSTATUS=" + self.status_line())
         interval = watchdog_interval()
         if interval is not None:
@@ -249,7 +260,8 @@ class Daemon:
         from hostd.metrics.server import MetricsError, MetricsServer
 
         self.metrics = MetricsServer(self.config["metrics.host"], self.config["metrics.port"],
-                                     self.snapshot)
+                                     self.snapshot, self.config["metrics.max_connections"],
+                                     self.config["daemon.idle_timeout"], self.limits.turns)
         try:
             self.metrics.start()
         except MetricsError as exc:  # a port in use: fatal, as a config error is
@@ -348,6 +360,17 @@ class Daemon:
             self.store.close()
         self._lock.release()
 
+    def snapshot_json(self) -> Encoded:
+        """:meth:`snapshot` encoded, the same for :data:`STATUS_TTL_S` while no event is
+        published (an event may follow a change that the counters do not show)."""
+        now, published = time.monotonic(), self.bus.published
+        cached = self._status_json
+        if cached is not None and now - cached[1] < STATUS_TTL_S and cached[2] == published:
+            return cached[0]
+        text = encoded(self.snapshot())
+        self._status_json = (text, now, published)
+        return text
+
     def snapshot(self) -> dict[str, Any]:
         """Every component's ``status()`` (plain JSON)."""
         link = self.link.status()
@@ -362,7 +385,40 @@ class Daemon:
             "control": self.server.status() if self.server is not None else {},
             "events": self.bus.status(),
             "metrics": self.metrics.status() if self.metrics is not None else None,
+            "connections": self.connections(),
         }
+
+    def connections(self) -> dict[str, Any]:
+        """Connections open and refused by listener, and those dropped by a limit."""
+        gates = [self.limits.gate] + ([self.metrics.gate] if self.metrics is not None else [])
+        return {"open": {g.name: len(g.open) for g in gates},
+                "refused": {g.name: g.refused for g in gates},
+                "dropped": dict(self.limits.dropped),
+                "events_dropped": self.limits.events_dropped}
+
+
+def descriptors_needed(config: Config) -> int:
+    """Open files the connection caps may take, with :data:`FD_RESERVE` for the rest."""
+    metrics = config["metrics.max_connections"] if config["metrics.enabled"] else 0
+    return int(config["daemon.max_connections"]) + int(metrics) + FD_RESERVE
+
+
+def check_descriptors(config: Config) -> None:
+    """Raise the soft limit of open files to what the caps need, or refuse to start (with
+    too few, connections at the cap would leave none for the port, the database, uploads)."""
+    need = descriptors_needed(config)
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft >= need:
+        return
+    if hard == resource.RLIM_INFINITY or hard >= need:
+        try:
+            resource.setrlimit(resource.RLIMIT_NOFILE, (need, hard))
+            return
+        except (OSError, ValueError) as exc:  # a system call filter may refuse it
+            log.debug("setrlimit: %s", exc)
+    raise DaemonError(f"daemon.max_connections: the connection caps need {need} open files "
+                      f"({FD_RESERVE} beside the caps), the limit is {soft} (LimitNOFILE= in "
+                      "the unit, ulimit -n)")
 
 
 def _activated_socket() -> socket.socket | None:

@@ -67,7 +67,7 @@ class Client:
                "params": {k: v for k, v in params.items() if v is not None}}
         self.sock.settimeout(timeout)
         try:
-            self.sock.sendall(json.dumps(msg).encode() + b"\n")
+            self._send(json.dumps(msg).encode() + b"\n")
             while True:
                 reply = self._read()
                 if "method" in reply and "id" not in reply:
@@ -83,6 +83,21 @@ class Client:
             raise CliError(f"hostd did not answer {method} in time", EXIT_UNREACHABLE) from None
         except OSError as exc:
             raise CliError(f"connection to hostd lost: {exc}", EXIT_UNREACHABLE) from None
+
+    def _send(self, data: bytes) -> None:
+        """Send a request; a daemon that closed the connection first may have said why (too
+        many connections): that answer is the error, not the broken pipe."""
+        try:
+            self.sock.sendall(data)
+        except OSError:
+            try:
+                reply = self._read()
+            except (CliError, OSError):
+                raise
+            err = reply.get("error") if reply.get("id") is None else None
+            if not isinstance(err, dict):
+                raise
+            raise RpcFailure(int(err.get("code", 0)), str(err.get("message"))) from None
 
     def events(self, timeout: float | None = None) -> Iterator[tuple[str, dict[str, Any]]]:
         """Pushed notifications as ``(event, data)``, forever (until the daemon closes)."""

@@ -183,6 +183,10 @@ def _script_gcode(c: Config, key: str) -> str | None:
 
 
 def _problems(c: Config) -> Iterator[tuple[str, str]]:
+    if c["daemon.max_request_bytes"] > c["daemon.max_buffered_bytes"]:
+        yield "daemon.max_buffered_bytes", (f"{c['daemon.max_buffered_bytes']} is below "
+                                            "daemon.max_request_bytes "
+                                            f"({c['daemon.max_request_bytes']})")
     if c["serial.reconnect_min"] > c["serial.reconnect_max"]:
         yield "serial.reconnect_min", (f"{c['serial.reconnect_min']:g} is above "
                                        f"serial.reconnect_max ({c['serial.reconnect_max']:g})")

@@ -210,6 +210,27 @@ SCHEMA: dict[str, dict[str, Field]] = {
                          "a job has left a part on the platform, until hostctl queue start; "
                          "at_once starts it right away (an empty platform each time).",
                          "after_clear", choices=("after_clear", "at_once")),
+        "max_connections": Number(
+            "Most control connections open at once. At the cap, the connection that has sent "
+            "no request for longest is closed to make room; when every one has, a new one "
+            "gets an error (-32009) and is closed (hostd_connections_refused_total).", 64,
+            lo=1, hi=4096, integer=True),
+        "idle_timeout": Number(
+            "Seconds a control connection may go without a whole request while it has none "
+            "in progress and no event subscription; then it is closed. The bytes of an "
+            "unfinished request do not count (a client sending a byte at a time is dropped).",
+            30.0, lo=1, hi=86400),
+        "max_request_bytes": Number(
+            "Largest request (one JSON-RPC line), bytes: a longer one gets an error (-32007) "
+            "and its connection is closed. A file larger than about 3/4 of it (base64) goes "
+            "in parts (job.upload), as hostctl sends any file over 192 KiB (a part of 256 "
+            "KiB of base64 in its request).", 512 * 1024, lo=384 * 1024, hi=2**36,
+            integer=True),
+        "max_buffered_bytes": Number(
+            "Bytes of unfinished and unanswered requests hostd holds across all control "
+            "connections; when they would pass it, the connection holding the most is "
+            "dropped. At least daemon.max_request_bytes.", 16 * 1024 * 1024,
+            lo=384 * 1024, hi=2**38, integer=True),
     },
     "metrics": {
         "enabled": Flag("Serve Prometheus metrics.", True),
@@ -219,6 +240,10 @@ SCHEMA: dict[str, dict[str, Field]] = {
                      "address in a drop-in (systemctl edit hostd.service: IPAddressAllow=ADDR).",
                      "127.0.0.1"),
         "port": Number("Metrics TCP port.", 9464, lo=1, hi=65535, integer=True),
+        "max_connections": Number(
+            "Most metrics connections open at once (a scrape takes one; one that sends no "
+            "whole request within daemon.idle_timeout is closed); past it a new one gets "
+            "503 and is closed.", 8, lo=1, hi=1024, integer=True),
     },
     "sim": {
         "rx_buffer_bytes": Number("Emulated firmware receive buffer, bytes.", 127, lo=16,

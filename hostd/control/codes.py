@@ -23,6 +23,8 @@ PRINTER_ERROR = -32005
 SLICE_FAILED = -32006
 MESSAGE_TOO_LARGE = -32007
 SHUTTING_DOWN = -32008
+CONNECTION_LIMIT = -32009
+"""A connection refused or closed by a limit (too many open, idle too long, ...)."""
 
 
 class RpcError(Exception):

@@ -16,7 +16,7 @@ from typing import Any
 from hostd import __version__
 from hostd.control.codes import INVALID_PARAMS, UPLOAD_REJECTED, RpcError
 from hostd.control.host import Host
-from hostd.control.rpc import Endpoint, Param, Registry
+from hostd.control.rpc import Encoded, Endpoint, Param, Registry
 from hostd.control.server import Client
 from hostd.control.upload import PartUploads, write_base64
 from hostd.events import check_names
@@ -47,8 +47,8 @@ async def server_info(api: Api, ctx: Client) -> dict[str, Any]:
             "methods": list(api.methods)}
 
 
-async def printer_status(api: Api, ctx: Client) -> dict[str, Any]:
-    return api.host.snapshot()
+async def printer_status(api: Api, ctx: Client) -> Encoded:
+    return api.host.snapshot_json()
 
 
 async def printer_gcode(api: Api, ctx: Client, script: str) -> dict[str, Any]:

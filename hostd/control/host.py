@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from typing import Any, Protocol
 
+from hostd.control.rpc import Encoded
 from hostd.events import EventBus
 from hostd.jobs.manager import JobManager
 from hostd.printer.raw_gcode import RawReplies
@@ -34,6 +35,11 @@ class Host(Protocol):
 
     def snapshot(self) -> dict[str, Any]:
         """Every component's ``status()`` (plain JSON)."""
+        ...
+
+    def snapshot_json(self) -> Encoded:
+        """:meth:`snapshot` encoded, as ``printer.status`` answers it (a few milliseconds
+        old at most, and never older than the last event)."""
         ...
 
     async def raw_gcode(self, script: str) -> RawReplies:

@@ -208,9 +208,39 @@ def _finite(obj: Any) -> Any:
     return obj
 
 
+class Encoded(str):
+    """A result already encoded as JSON text (a handler's cached answer): put in its reply
+    as it is, not encoded again."""
+
+
+def encoded(result: Any) -> Encoded:
+    """``result`` as :class:`Encoded` JSON (non-finite numbers as :func:`_finite` has them)."""
+    try:
+        return Encoded(json.dumps(result, separators=(",", ":"), allow_nan=False))
+    except ValueError:
+        return Encoded(json.dumps(_finite(result), separators=(",", ":"), allow_nan=False))
+
+
+def _spliced(message: Any) -> str | None:
+    """``message`` as one line when it, or a batch of replies, holds :class:`Encoded`
+    results; ``None`` when none does."""
+    replies = message if isinstance(message, list) else [message]
+    if not any(isinstance(r, dict) and isinstance(r.get("result"), Encoded) for r in replies):
+        return None
+    parts = [_splice(r) for r in replies]
+    return (f"[{','.join(parts)}]" if isinstance(message, list) else parts[0]) + "\n"
+
+
+def _splice(reply: Any) -> str:
+    result = reply.get("result") if isinstance(reply, dict) else None
+    if not isinstance(result, Encoded):
+        return encode(reply)[:-1]
+    return f'{{"jsonrpc":"2.0","id":{json.dumps(reply["id"])},"result":{result}}}'
+
+
 def _encode_safe(message: Any) -> str:
     try:
-        return encode(message)
+        return _spliced(message) or encode(message)
     except (ValueError, RecursionError):
         pass
     try:

@@ -1,32 +1,36 @@
 """The control server: JSON-RPC 2.0 over a Unix socket, one message per line.
 
-Each client has a reader task (requests are answered in order) and a writer task draining one
-outgoing queue, so responses and pushed notifications never interleave mid-line. A message over
-the size limit gets an error and the connection is closed; a client that stops reading its
-events is dropped once its queue is full. Neither affects the daemon or the other clients.
+Connections are accepted under the API's limits (:mod:`hostd.control.limits`: a cap on
+connections, a budget of buffered request bytes, idle timeouts, bounded event queues, requests
+in turns) and served by :class:`~hostd.control.connection.Connection`: requests answered in
+order, responses and pushed events whole and in order. A message over the size limit gets an
+error and the connection is closed; a client that stops reading its events is dropped once
+its queue is full. Neither affects the daemon or the other clients.
 """
 
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import itertools
 import logging
 import os
 import socket
 import stat
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from hostd.control.codes import MESSAGE_TOO_LARGE
+from hostd.control.codes import CONNECTION_LIMIT
+from hostd.control.connection import Client, Connection
+from hostd.control.limits import ConnectionGate, Limits, LimitSettings, Listener, Ticket
 from hostd.control.rpc import Registry, encode, notification, response
 from hostd.events import EventBus
+
+__all__ = ["Client", "ControlError", "ControlServer"]
 
 log = logging.getLogger(__name__)
 
 SOCKET_MODE = 0o660
-CLIENT_QUEUE = 2000  # outgoing messages buffered per client before it counts as stuck
+BACKLOG = 128
 
 
 class ControlError(Exception):
@@ -45,40 +49,6 @@ def _why(exc: OSError, path: Path) -> str:
     return str(exc) or type(exc).__name__
 
 
-class Client:
-    """One connection: its id, its event subscription and its outgoing queue."""
-
-    def __init__(self, cid: int, server: ControlServer) -> None:
-        self.id = cid
-        self.server = server
-        self.queue: asyncio.Queue[str | None] = asyncio.Queue()
-        self.subscribed: frozenset[str] | None = None  # None: not subscribed
-        self.all_events = False
-        self.dropped = False
-        self.on_close: dict[str, Callable[[], None]] = {}  # run once the connection has ended
-
-    def send(self, line: str) -> None:
-        if self.dropped:
-            return
-        if self.queue.qsize() >= CLIENT_QUEUE:
-            log.warning("client %d is not reading; dropping it", self.id)
-            self.dropped = True
-            self.queue.put_nowait(None)
-            return
-        self.queue.put_nowait(line)
-
-    def subscribe(self, names: list[str] | None) -> None:
-        self.all_events = not names
-        self.subscribed = frozenset(names or ())
-
-    def on_event(self, name: str, data: dict[str, Any]) -> None:
-        if self.subscribed is None:
-            return
-        if self.all_events or name in self.subscribed:
-            self.send(encode(notification("notify_" + name.replace(".", "_"),
-                                          {"event": name, **data})))
-
-
 class ControlServer:
     """Serve ``registry`` on the Unix socket ``path`` (mode 0660).
 
@@ -90,24 +60,25 @@ class ControlServer:
         The endpoints; handlers get the :class:`Client` as ``ctx``.
     bus
         Events pushed to subscribed clients.
-    max_message
-        Largest request line, bytes.
+    limits
+        The API's limits (shared with any other listener of the API).
     """
 
     def __init__(self, path: str | Path, registry: Registry, bus: EventBus,
-                 max_message: int) -> None:
+                 limits: Limits | None = None) -> None:
         self.path = Path(path)
         self.registry = registry
         self.bus = bus
-        self.max_message = max_message
+        self.limits = limits or Limits(LimitSettings())
         self.clients: dict[int, Client] = {}
+        self.connections: set[Connection] = set()
+        self.subscribers = 0
         self._ids = itertools.count(1)
-        self._server: asyncio.AbstractServer | None = None
-        self._tasks: set[asyncio.Task[None]] = set()
-        self._closing = False
+        self._sock: socket.socket | None = None
+        self._listener: Listener | None = None
+        self.closing = False
         self._unsubscribe = bus.subscribe(self._broadcast)
         self.requests = 0
-        self.connections = 0
         self.oversized = 0
         self.inherited = False  # the listening socket came from systemd (socket activation)
         self._made: tuple[int, int] | None = None  # (st_dev, st_ino) of the socket we bound
@@ -115,34 +86,50 @@ class ControlServer:
     async def start(self, sock: socket.socket | None = None) -> None:
         """Listen on ``path``, or serve ``sock``, a listening socket passed by systemd."""
         if sock is not None:
-            await self._adopt(sock)
-            return
+            self._adopt(sock)
+        else:
+            await self._bind()
+        assert self._sock is not None
+        self._listener = Listener(self._sock, self.limits.gate, self._connection, _refusal)
+        self._listener.start()
+
+    async def _bind(self) -> None:
         try:
             await self._remove_stale()
             self.path.parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise ControlError(f"{self.path}: cannot use: {_why(exc, self.path)}") from None
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         old = os.umask(0o117)  # the socket is born 0660: no window with wider permissions
         try:
-            self._server = await asyncio.start_unix_server(
-                self._serve, path=str(self.path), limit=self.max_message)
+            sock.bind(str(self.path))
+            sock.listen(BACKLOG)
         except OSError as exc:
+            sock.close()
             raise ControlError(f"{self.path}: cannot listen: {_why(exc, self.path)}") from None
         finally:
             os.umask(old)
         os.chmod(self.path, SOCKET_MODE)
         made = self.path.stat()
         self._made = (made.st_dev, made.st_ino)
+        self._sock = sock
         log.info("control socket %s", self.path)
 
-    async def _adopt(self, sock: socket.socket) -> None:
+    def _connection(self, ticket: Ticket) -> Connection:
+        return Connection(self, ticket, next(self._ids))
+
+    def attach(self, conn: Connection) -> None:
+        self.connections.add(conn)
+        self.clients[conn.client.id] = conn.client
+
+    def detach(self, conn: Connection) -> None:
+        self.connections.discard(conn)
+        self.clients.pop(conn.client.id, None)
+
+    def _adopt(self, sock: socket.socket) -> None:
         if sock.family != socket.AF_UNIX or sock.type != socket.SOCK_STREAM:
             raise ControlError(f"inherited fd {sock.fileno()} is not a Unix stream socket")
-        try:
-            self._server = await asyncio.start_unix_server(self._serve, sock=sock,
-                                                           limit=self.max_message)
-        except OSError as exc:
-            raise ControlError(f"inherited socket: {exc.strerror or exc}") from None
+        self._sock = sock
         self.inherited = True
         name = sock.getsockname()
         if isinstance(name, str) and name and Path(name) != self.path:
@@ -166,18 +153,16 @@ class ControlServer:
         raise ControlError(f"{self.path}: another daemon is listening")
 
     async def close(self) -> None:
-        self._closing = True
+        self.closing = True
         self._unsubscribe()
-        if self._server is not None:
-            self._server.close()
-        for client in list(self.clients.values()):
-            client.queue.put_nowait(None)
-        for task in list(self._tasks):
+        if self._listener is not None:
+            self._listener.close()
+        tasks = [c.task for c in self.connections if c.task is not None]
+        for task in tasks:
             task.cancel()
-        await asyncio.gather(*self._tasks, return_exceptions=True)
-        if self._server is not None:
-            with contextlib.suppress(Exception):
-                await self._server.wait_closed()
+        await asyncio.gather(*tasks, return_exceptions=True)  # each closes its connection
+        if self._sock is not None:
+            self._sock.close()
         self._unlink_own()
 
     def _unlink_own(self) -> None:
@@ -193,73 +178,23 @@ class ControlServer:
             self.path.unlink(missing_ok=True)
 
     def _broadcast(self, name: str, data: dict[str, Any]) -> None:
-        for client in list(self.clients.values()):
-            client.on_event(name, data)
-
-    async def _serve(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        task = asyncio.current_task()
-        assert task is not None
-        self._tasks.add(task)
-        client = Client(next(self._ids), self)
-        self.clients[client.id] = client
-        self.connections += 1
-        out = asyncio.create_task(self._write_loop(client, writer))
-        try:
-            await self._read_loop(client, reader)
-        except (ConnectionError, asyncio.IncompleteReadError) as exc:
-            log.debug("client %d: %s", client.id, exc)
-        except asyncio.CancelledError:
-            if not self._closing:
-                raise
-            # the server stops: the connection ends as a normal close would (a task ending
-            # cancelled is reported as an error by asyncio's stream callback on Python 3.11)
-        finally:
-            self.clients.pop(client.id, None)
-            client.queue.put_nowait(None)
-            for name, hook in client.on_close.items():
-                try:
-                    hook()
-                except Exception:  # one failing hook must not keep the others from running
-                    log.exception("client %d: closing %s", client.id, name)
-            with contextlib.suppress(Exception):
-                await out
-            writer.close()
-            with contextlib.suppress(Exception):
-                await writer.wait_closed()
-            self._tasks.discard(task)
-
-    async def _read_loop(self, client: Client, reader: asyncio.StreamReader) -> None:
-        while not client.dropped:
-            try:
-                line = await reader.readline()
-            except ValueError:  # over the limit: answer, then hang up (cannot resync)
-                self.oversized += 1
-                client.send(encode(response(None, error={
-                    "code": MESSAGE_TOO_LARGE,
-                    "message": f"message exceeds {self.max_message} bytes"})))
-                return
-            if not line:
-                return
-            if not line.strip():
-                continue
-            self.requests += 1
-            reply = await self.registry.dispatch(line, client)
-            if reply is not None:
-                client.send(reply)
-
-    async def _write_loop(self, client: Client, writer: asyncio.StreamWriter) -> None:
-        try:
-            while (line := await client.queue.get()) is not None:
-                writer.write(line.encode())
-                await writer.drain()
-        except ConnectionError:
-            client.dropped = True
-        finally:
-            writer.close()  # also ends the reader of a dropped client
+        """One event to every subscriber that wants it, encoded once."""
+        line: bytes | None = None
+        for conn in list(self.connections):
+            if conn.client.wants(name):
+                if line is None:
+                    line = encode(notification("notify_" + name.replace(".", "_"),
+                                               {"event": name, **data})).encode()
+                conn.push(line)
 
     def status(self) -> dict[str, Any]:
         return {"socket": str(self.path), "activated": self.inherited,
-                "clients": len(self.clients),
-                "subscribed": sum(1 for c in self.clients.values() if c.subscribed is not None),
-                "connections_total": self.connections, "requests_total": self.requests,
-                "oversized_total": self.oversized}
+                "clients": len(self.connections), "subscribed": self.subscribers,
+                "connections_total": self.limits.gate.accepted, "requests_total": self.requests,
+                "oversized_total": self.oversized, "limits": self.limits.status()}
+
+
+def _refusal(gate: ConnectionGate) -> bytes:
+    """The line a connection refused at the cap gets."""
+    return encode(response(None, error={"code": CONNECTION_LIMIT,
+                                        "message": gate.refusal()})).encode()

@@ -1,28 +1,34 @@
-"""Serve the metrics over HTTP with prometheus-client's own server.
+"""Serve the metrics over HTTP: prometheus-client's exposition, on the daemon's event loop.
 
-prometheus-client answers scrapes on its own thread; each scrape asks the event loop for a
-fresh snapshot (``run_coroutine_threadsafe``), so components' ``status()`` are only ever read
-on the loop thread and never need locks.
+The answer is prometheus-client's own WSGI app (``make_wsgi_app``: content negotiation,
+OpenMetrics, gzip, ``name[]`` filters), called from a small bounded HTTP server on the loop
+(:mod:`hostd.metrics.http`) instead of prometheus-client's threaded one, which took a thread
+for every connection held open and accepted without limit. Connections count against
+``metrics.max_connections``, one without a whole request within ``daemon.idle_timeout`` is
+closed, and each scrape is rendered in its turn (:class:`~hostd.control.limits.Turns`), the
+serial port's callbacks between any two. The snapshot is read on the loop thread, so
+components' ``status()`` never need locks.
 
 The server adds the figures of this process's run under ``metrics`` (its own ``status()``):
 the daemon's start time, and the jobs finished since the start, by outcome. The job manager's
-``jobs.finished`` starts from the database's row counts (it goes down once a job is deleted
+``jobs.finished`` starts from the database's rows (it goes down once a job is deleted
 and hostd restarts), so the counter exports only what it gained while this process ran.
 """
 
 from __future__ import annotations
 
-import asyncio
-import threading
+import socket
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from prometheus_client import start_http_server
+from prometheus_client import make_wsgi_app
 
+from hostd.control.limits import ConnectionGate, Listener, Ticket, Turns
 from hostd.metrics.collector import Snapshot, lookup, make_registry
+from hostd.metrics.http import HttpConnection, simple_response
 
-SCRAPE_TIMEOUT = 5.0
+BACKLOG = 64
 
 
 class MetricsError(Exception):
@@ -62,15 +68,28 @@ def _counts(figures: Any) -> dict[str, int]:
 OUTCOMES = ("completed", "failed", "cancelled", "interrupted")
 
 
-class MetricsServer:
-    """HTTP ``/metrics`` on ``host:port`` rendering ``snapshot()`` from the event loop."""
+def _refusal(gate: ConnectionGate) -> bytes:
+    return simple_response("503 Service Unavailable", gate.refusal() + "\n")
 
-    def __init__(self, host: str, port: int, snapshot: Callable[[], Snapshot]) -> None:
+
+class MetricsServer:
+    """HTTP ``/metrics`` on ``host:port`` rendering ``snapshot()`` on the event loop.
+
+    At most ``max_connections`` connections; one idle ``idle_timeout`` seconds is closed;
+    ``turns`` are the API's (scrapes take turns with its requests), else its own."""
+
+    def __init__(self, host: str, port: int, snapshot: Callable[[], Snapshot],
+                 max_connections: int = 8, idle_timeout: float = 30.0,
+                 turns: Turns | None = None) -> None:
         self._host, self._port = host, port
         self._snapshot = snapshot
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._server: Any = None
-        self._thread: threading.Thread | None = None
+        self.gate = ConnectionGate("metrics", max_connections, "metrics.max_connections")
+        self.idle_timeout = idle_timeout
+        self.turns = turns or Turns()
+        self._app = make_wsgi_app(make_registry(self._scrape_snapshot))
+        self._sock: socket.socket | None = None
+        self._listener: Listener | None = None
+        self._conns: set[HttpConnection] = set()
         self.scrapes = 0
         self.finished = RunTally(OUTCOMES)
         self.start_time: float | None = None
@@ -79,48 +98,58 @@ class MetricsServer:
         """Start serving; call from the event loop's thread, once the components run: the
         jobs finished from now on are counted (a job the last run left printing is recorded
         ``interrupted`` at the start, before this, and is not)."""
-        self._loop = asyncio.get_running_loop()
         first = self._snapshot()
         self.finished.observe(lookup(first, "jobs.finished"))
         uptime = lookup(first, "daemon.uptime_s")
         now = time.time()
         self.start_time = round(now - uptime if isinstance(uptime, int | float) else now, 3)
-        registry = make_registry(self._threadsafe_snapshot)
         try:
-            self._server, self._thread = start_http_server(self._port, addr=self._host,
-                                                           registry=registry)
+            self._sock = _listen(self._host, self._port)
         except OSError as exc:
             raise MetricsError(f"metrics: cannot listen on {self._host}:{self._port}: "
                                f"{exc.strerror or exc}") from None
+        self._listener = Listener(self._sock, self.gate, self._connection, _refusal)
+        self._listener.start()
+
+    def _connection(self, ticket: Ticket) -> HttpConnection:
+        return HttpConnection(ticket, self._app, self.turns, self.idle_timeout, self._counted,
+                              self._conns)
+
+    def _counted(self) -> None:
+        self.scrapes += 1
 
     @property
     def port(self) -> int:
         """The bound port (the configured one; tests pass 0 for any free port)."""
-        return int(self._server.server_address[1]) if self._server else self._port
+        return int(self._sock.getsockname()[1]) if self._sock is not None else self._port
 
-    def _threadsafe_snapshot(self) -> Snapshot:
-        assert self._loop is not None
-        if self._loop.is_closed():
-            raise MetricsError("metrics: event loop is closed")
-        self.scrapes += 1
-        fut = asyncio.run_coroutine_threadsafe(self._on_loop(), self._loop)
-        return fut.result(timeout=SCRAPE_TIMEOUT)
-
-    async def _on_loop(self) -> Snapshot:
+    def _scrape_snapshot(self) -> Snapshot:
         snap = dict(self._snapshot())
         self.finished.observe(lookup(snap, "jobs.finished"))
         snap["metrics"] = self.status()
         return snap
 
     def stop(self) -> None:
-        if self._server is not None:
-            self._server.shutdown()
-            self._server.server_close()
-            self._server = None
+        if self._listener is not None:
+            self._listener.close()
+        for conn in list(self._conns):
+            conn.close()
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
 
     def status(self) -> dict[str, Any]:
         """Also this run's figures: ``start_time_s`` (Unix time the daemon started) and
         ``jobs_finished`` (by outcome since then, as of the last scrape)."""
-        return {"host": self._host, "port": self.port, "serving": self._server is not None,
+        return {"host": self._host, "port": self.port, "serving": self._sock is not None,
                 "scrapes": self.scrapes, "start_time_s": self.start_time,
-                "jobs_finished": dict(self.finished.totals)}
+                "jobs_finished": dict(self.finished.totals),
+                "connections": len(self.gate.open), "max_connections": self.gate.cap,
+                "refused": self.gate.refused}
+
+
+def _listen(host: str, port: int) -> socket.socket:
+    """A listening TCP socket on ``host:port`` (IPv4 or IPv6, as the address is)."""
+    family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM,
+                                flags=socket.AI_PASSIVE)[0][0]
+    return socket.create_server((host, port), family=family, backlog=BACKLOG)

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from hostd.control.limits import DROP_REASONS
+
 
 @dataclass(frozen=True)
 class Spec:
@@ -56,6 +58,7 @@ PRINTER_JOB_STATES = ("idle", "printing", "paused", "completed", "failed", "canc
                       "interrupted")
 """The states ``hostd_job_state`` shows: a job on the printer, or how the last one ended."""
 LINK_STATES = ("disconnected", "handshake", "ready", "halted")
+LISTENERS = ("control", "metrics")
 
 SPECS: tuple[Spec, ...] = (
     Spec("hostd", "info", "Daemon version, printer and firmware identity.", "daemon.info"),
@@ -150,6 +153,23 @@ SPECS: tuple[Spec, ...] = (
          "link.temperatures", label="heater", field="actual"),
     Spec("hostd_temperature_target_celsius", "gauge", "Heater set point.",
          "link.temperatures", label="heater", field="target"),
+    Spec("hostd_connections_open", "gauge", "Client connections open, by listener (control: "
+         "the JSON-RPC socket, at most daemon.max_connections; metrics: this endpoint, at "
+         "most metrics.max_connections).", "connections.open", label="listener",
+         keys=LISTENERS),
+    Spec("hostd_connections_refused_total", "counter", "Connections turned away at the cap, "
+         "by listener: every place held by a connection that has sent a request (a silent "
+         "one is closed to make room instead, and counted in hostd_connections_dropped_total "
+         "as room).", "connections.refused", label="listener", keys=LISTENERS),
+    Spec("hostd_connections_dropped_total", "counter", "Control connections closed by a "
+         "limit, by reason: idle (daemon.idle_timeout without a whole request), too_large "
+         "(a request over daemon.max_request_bytes), budget (holding the most when "
+         "daemon.max_buffered_bytes ran out), slow_reader (a subscriber not reading its "
+         "events), room (silent, closed for a new connection at the cap).",
+         "connections.dropped", label="reason", keys=DROP_REASONS),
+    Spec("hostd_events_dropped_total", "counter", "Pushed events a subscriber never got "
+         "because it was dropped for not reading them (the one that found its queue full, "
+         "and those still queued).", "connections.events_dropped"),
     Spec("hostd_axis_position_degrees", "gauge",
          "Rotary axis position after the job's acknowledged lines (A tilt, C rotation).",
          "jobs.latest.axes", label="axis", keys=("A", "C")),

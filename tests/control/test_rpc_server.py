@@ -8,8 +8,9 @@ import stat
 
 import pytest
 
+from hostd.control.limits import Limits, LimitSettings
 from hostd.control.rpc import Param, Registry, error_for
-from hostd.control.server import CLIENT_QUEUE, ControlServer
+from hostd.control.server import ControlServer
 from hostd.events import EventBus, EventError
 from hostd.jobs.states import JobStateError
 from hostd.jobs.store import JobNotFound
@@ -37,6 +38,10 @@ def make_registry() -> Registry:
     reg.add("missing", missing)
     reg.add("sub", sub)
     return reg
+
+
+def small_limits(**kw: object) -> Limits:
+    return Limits(LimitSettings(**{"max_request_bytes": 4096, **kw}))  # type: ignore[arg-type]
 
 
 async def call(reg: Registry, msg: object) -> dict:
@@ -185,7 +190,7 @@ def test_event_bus_isolates_a_failing_handler():
 async def test_server_oversize_abrupt_disconnect_and_push(tmp_path):
     bus = EventBus()
     path = tmp_path / "s.sock"
-    server = ControlServer(path, make_registry(), bus, max_message=4096)
+    server = ControlServer(path, make_registry(), bus, limits=small_limits())
     async with asyncio.timeout(10):
         await server.start()
         assert stat.S_IMODE(os.stat(path).st_mode) == 0o660
@@ -229,7 +234,11 @@ async def subscribed(path, names: list[str]) -> tuple[asyncio.StreamReader,
 
 
 @pytest.mark.asyncio
-async def test_a_client_that_stops_reading_is_dropped_and_the_others_carry_on(tmp_path):
+async def test_a_client_that_stops_reading_is_dropped_and_the_others_carry_on(
+        tmp_path, caplog: pytest.LogCaptureFixture):
+    """Events beyond what the socket and the subscriber's queue hold (bytes, here) drop the
+    subscriber, with the reason logged and the events counted: nothing is buffered for it
+    without bound. It got a prefix of the events, in order; the other subscriber all of its."""
     reg = make_registry()
 
     async def sub_to(ctx, names: list) -> str:
@@ -239,16 +248,25 @@ async def test_a_client_that_stops_reading_is_dropped_and_the_others_carry_on(tm
     reg.add("sub_to", sub_to, Param("names", "list"))
     bus = EventBus()
     path = tmp_path / "s.sock"
-    server = ControlServer(path, reg, bus, max_message=4096)
+    limits = small_limits(queue_bytes=64 * 1024)
+    server = ControlServer(path, reg, bus, limits=limits)
+    pad = "x" * 10_000
+    published = 300  # 3 MB: more than the socket's buffers and the queue together
     async with asyncio.timeout(20):
         await server.start()
         stuck_r, stuck_w = await subscribed(path, ["flood"])
         other_r, other_w = await subscribed(path, ["other"])
-        for n in range(CLIENT_QUEUE + 10):  # no turn of the loop: nothing is written meanwhile
-            bus.publish("flood", {"n": n})
+        with caplog.at_level(logging.WARNING, logger="hostd.control.limits"):
+            for n in range(published):  # no turn of the loop: the client reads nothing
+                bus.publish("flood", {"n": n, "pad": pad})
         bus.publish("other", {"n": -1})
-        flood = (await stuck_r.read()).splitlines()  # what was queued, then the end
-        assert [json.loads(line)["params"]["n"] for line in flood] == list(range(CLIENT_QUEUE))
+        got = [json.loads(line)["params"]["n"] for line in (await stuck_r.read()).splitlines()
+               if line.endswith(b"}")]  # the last line may be cut by the drop
+        assert got == list(range(len(got))) and len(got) < published
+        status = limits.status()
+        assert status["dropped"]["slow_reader"] == 1
+        assert 1 <= status["events_dropped"] <= published - len(got)
+        assert any("not reading its events" in r.getMessage() for r in caplog.records)
         note = json.loads(await other_r.readline())
         assert note["method"] == "notify_other" and note["params"]["n"] == -1
         other_w.write(b'{"jsonrpc": "2.0", "id": 2, "method": "echo", "params": ["z"]}\n')
@@ -275,7 +293,7 @@ async def test_close_hooks_run_when_a_connection_ends(tmp_path):
         return ctx.id
 
     reg.add("hold", hold)
-    server = ControlServer(tmp_path / "s.sock", reg, EventBus(), max_message=4096)
+    server = ControlServer(tmp_path / "s.sock", reg, EventBus(), limits=small_limits())
     async with asyncio.timeout(10):
         await server.start()
         r, w = await asyncio.open_unix_connection(str(tmp_path / "s.sock"))
@@ -293,10 +311,10 @@ async def test_close_hooks_run_when_a_connection_ends(tmp_path):
 async def test_second_server_on_a_live_socket_is_refused(tmp_path):
     path = tmp_path / "s.sock"
     bus = EventBus()
-    first = ControlServer(path, make_registry(), bus, 4096)
+    first = ControlServer(path, make_registry(), bus, small_limits())
     async with asyncio.timeout(5):
         await first.start()
-        second = ControlServer(path, make_registry(), bus, 4096)
+        second = ControlServer(path, make_registry(), bus, small_limits())
         with pytest.raises(Exception, match="another daemon"):
             await second.start()
         await second.close()  # the refused daemon shuts down: the live socket stays
@@ -313,7 +331,7 @@ async def test_second_server_on_a_live_socket_is_refused(tmp_path):
 async def test_a_server_refused_by_an_ordinary_file_leaves_the_file(tmp_path):
     path = tmp_path / "s.sock"
     path.write_text("operator's notes\n")
-    server = ControlServer(path, make_registry(), EventBus(), 4096)
+    server = ControlServer(path, make_registry(), EventBus(), small_limits())
     async with asyncio.timeout(5):
         with pytest.raises(Exception, match="exists and is not a socket"):
             await server.start()
@@ -327,8 +345,8 @@ async def test_a_socket_replaced_after_start_is_not_removed_by_close(tmp_path):
     daemon started): stopping the first must not take the second's socket."""
     path = tmp_path / "s.sock"
     bus = EventBus()
-    first = ControlServer(path, make_registry(), bus, 4096)
-    second = ControlServer(path, make_registry(), bus, 4096)
+    first = ControlServer(path, make_registry(), bus, small_limits())
+    second = ControlServer(path, make_registry(), bus, small_limits())
     async with asyncio.timeout(5):
         await first.start()
         path.unlink()
@@ -349,7 +367,7 @@ async def test_closing_with_clients_connected_leaves_nothing_for_the_loop_to_rep
     contexts: list[dict] = []
     loop.set_exception_handler(lambda _loop, context: contexts.append(context))
     path = tmp_path / "s.sock"
-    server = ControlServer(path, make_registry(), EventBus(), max_message=4096)
+    server = ControlServer(path, make_registry(), EventBus(), limits=small_limits())
     try:
         async with asyncio.timeout(10):
             await server.start()
@@ -375,7 +393,7 @@ async def test_a_socket_path_too_long_to_bind_names_the_problem(tmp_path):
     from hostd.control.server import ControlError
 
     path = tmp_path / ("d" * 60) / ("s" * 60 + ".sock")
-    server = ControlServer(path, make_registry(), EventBus(), 4096)
+    server = ControlServer(path, make_registry(), EventBus(), small_limits())
     async with asyncio.timeout(5):
         with pytest.raises(ControlError) as caught:
             await server.start()

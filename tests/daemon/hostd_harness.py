@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import asyncio
+import base64
 import itertools
 import json
 import os
+import resource
 import signal
+import socket
 import sys
 from pathlib import Path
 from typing import Any
@@ -15,6 +18,7 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[2]
 READY = "ready (socket"
+PART_BYTES = 3 << 16  # hostctl's parts
 
 
 def make_gcode(subparts: int = 3, layers: int = 3, per_layer: int = 40) -> str:
@@ -50,6 +54,23 @@ HOUSEKEEPING = {"M105", "M110", "M115", "M110 N0"}
 def executed(log: list[list[Any]]) -> list[str]:
     """The emulator log without the link's own handshake and idle temperature queries."""
     return [c for _, c in log if c.split()[0] not in HOUSEKEEPING]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+async def scrape(port: int, accept: str = "text/plain") -> str:
+    r, w = await asyncio.open_connection("127.0.0.1", port)
+    w.write(f"GET /metrics HTTP/1.0\r\nHost: localhost\r\nAccept: {accept}\r\n\r\n".encode())
+    await w.drain()
+    raw = await r.read()
+    w.close()
+    head, _, body = raw.partition(b"\r\n\r\n")
+    assert head.split(b"\r\n")[0].split()[1] == b"200", head
+    return body.decode()
 
 
 class Rpc:
@@ -93,7 +114,15 @@ class Rpc:
         return msg["result"]
 
     async def submit_text(self, name: str, text: str) -> dict[str, Any]:
-        return await self.call("job.submit", name=name, data=text, encoding="text")
+        """Queue ``text``: in one request, or in parts when it is long, as hostctl does
+        (a request is at most daemon.max_request_bytes)."""
+        data = text.encode()
+        if len(data) <= PART_BYTES:
+            return await self.call("job.submit", name=name, data=text, encoding="text")
+        for offset in range(0, len(data), PART_BYTES):
+            part = base64.b64encode(data[offset:offset + PART_BYTES]).decode()
+            await self.call("job.upload", data=part, offset=offset)
+        return await self.call("job.submit", name=name)
 
     async def printing(self, text: str, progress: float = 0.1) -> dict[str, Any]:
         """Subscribe, submit ``text`` as ``long.gcode`` and wait until a ``progress`` share
@@ -152,12 +181,17 @@ class DaemonProc:
         self._drain: asyncio.Task[None] | None = None
 
     async def start(self, env: dict[str, str] | None = None, pass_fds: tuple[int, ...] = (),
-                    wrapper: tuple[str, ...] = ()) -> None:
-        """Spawn hostd (after ``wrapper`` argv, e.g. an fd-moving exec) and wait for ready."""
+                    wrapper: tuple[str, ...] = (), limit_files: int | None = None) -> None:
+        """Spawn hostd (after ``wrapper`` argv, e.g. an fd-moving exec; with at most
+        ``limit_files`` open files, as LimitNOFILE= sets) and wait for ready."""
+        def limit() -> None:
+            if limit_files is not None:
+                resource.setrlimit(resource.RLIMIT_NOFILE, (limit_files, limit_files))
+
         self.proc = await asyncio.create_subprocess_exec(
             *wrapper, sys.executable, "-m", "hostd.main", "--config", str(self.config),
             stderr=asyncio.subprocess.PIPE, cwd=str(ROOT), pass_fds=pass_fds,
-            env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})})
+            env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}, preexec_fn=limit)
         assert self.proc.stderr is not None
         while True:
             line = (await self.proc.stderr.readline()).decode()

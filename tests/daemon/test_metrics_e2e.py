@@ -11,12 +11,11 @@ import asyncio
 import json
 import math
 import re
-import socket
 import sys
 from typing import Any
 
 import pytest
-from hostd_harness import ROOT, make_gcode
+from hostd_harness import ROOT, free_port, make_gcode, scrape
 from prometheus_client.metrics_core import Metric
 from prometheus_client.openmetrics.parser import text_string_to_metric_families as parse_om
 from prometheus_client.parser import text_string_to_metric_families as parse_text
@@ -34,23 +33,6 @@ COUNTERS = {"hostd_serial_lines_sent": "lines_sent",
             "hostd_serial_reconnects": "reconnects"}
 OPENMETRICS = "application/openmetrics-text; version=1.0.0"
 ATTEMPTS = 8  # consistent reads around a scrape (an idle M105 may land in between)
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-async def scrape(port: int, accept: str = "text/plain") -> str:
-    r, w = await asyncio.open_connection("127.0.0.1", port)
-    w.write(f"GET /metrics HTTP/1.0\r\nHost: localhost\r\nAccept: {accept}\r\n\r\n".encode())
-    await w.drain()
-    raw = await r.read()
-    w.close()
-    head, _, body = raw.partition(b"\r\n\r\n")
-    assert head.split(b"\r\n")[0].split()[1] == b"200", head
-    return body.decode()
 
 
 async def families(port: int) -> dict[str, Metric]:

@@ -33,8 +33,21 @@ def test_service_has_the_required_settings() -> None:
     assert "dialout" in svc["SupplementaryGroups"]
     for key in ("RuntimeDirectory", "StateDirectory", "WatchdogSec", "NoNewPrivileges",
                 "ProtectSystem", "ProtectHome", "PrivateTmp", "RestrictAddressFamilies",
-                "DeviceAllow"):
+                "DeviceAllow", "LimitNOFILE"):
         assert key in svc, key
+
+
+def test_the_units_open_files_hold_the_default_connection_caps() -> None:
+    """Issue 38: with no LimitNOFILE, a thousand idle connections used up the open files and
+    locked everyone out. The unit's limit holds the default caps and their reserve (hostd
+    refuses to start when its caps need more than the limit), and the system call filter
+    leaves hostd no way to raise it itself."""
+    from hostd.config import defaults
+    from hostd.daemon import descriptors_needed
+
+    svc = _service()["Service"]
+    assert descriptors_needed(defaults()) <= int(svc["LimitNOFILE"])
+    assert "@resources" in svc["SystemCallFilter"]
 
 
 def _installable(tmp_path: Path) -> Path:

@@ -46,41 +46,7 @@ virtual = pytest.importorskip(
     reason="OctoPrint is not installed (optional: pip install octoprint in a separate venv)")
 plugin = pytest.importorskip("octoprint.plugins.virtual_printer")
 
-
-class _Settings:
-    """The slice of OctoPrint's plugin settings API the virtual printer reads."""
-
-    def __init__(self, overrides: dict[str, Any]) -> None:
-        self.values = plugin.VirtualPrinterPlugin().get_settings_defaults()
-        self.values.update(overrides)
-
-    def get(self, path: list[str], merged: bool = False) -> Any:
-        value: Any = self.values
-        for key in path:
-            value = value[key]
-        return value
-
-    def get_int(self, path: list[str]) -> int:
-        return int(self.get(path))
-
-    def get_float(self, path: list[str]) -> float:
-        return float(self.get(path))
-
-    def get_boolean(self, path: list[str]) -> bool:
-        return bool(self.get(path))
-
-    def global_get_basefolder(self, name: str) -> str:
-        return tempfile.mkdtemp(prefix=f"octo-{name}-")
-
-
-class _NoPlugins:
-    def get_hooks(self, name: str) -> dict[str, Any]:
-        return {}
-
-
-class _Profiles:
-    def get_current_or_default(self) -> dict[str, Any]:
-        return {"volume": {"width": 500, "depth": 500, "height": 700}}
+from bench.virtual_printer import NoPlugins, Profiles, Settings  # noqa: E402  (OctoPrint's)
 
 
 def _pump_writes(sock: socket.socket, printer: Any) -> None:
@@ -117,7 +83,7 @@ MARLIN_ERRORS = [
 def opener_for(overrides: dict[str, Any]) -> Any:
     async def open_virtual(settings: LinkSettings, sim: SimSettings | None) -> Connection:
         host, board = socket.socketpair()
-        printer = virtual.VirtualPrinter(_Settings(overrides), _Profiles(),
+        printer = virtual.VirtualPrinter(Settings(overrides), Profiles(),
                                          tempfile.mkdtemp(), read_timeout=0.1)
         stop = threading.Event()
         threading.Thread(target=_pump_writes, args=(board, printer), daemon=True).start()
@@ -134,7 +100,7 @@ def opener_for(overrides: dict[str, Any]) -> Any:
 ], ids=["defaults", "busy", "small-buffers"])
 async def test_stream_against_octoprint_virtual_printer(
         overrides: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(virtual, "plugin_manager", _NoPlugins)
+    monkeypatch.setattr(virtual, "plugin_manager", NoPlugins)
     # The virtual printer emulates a 64-byte receive buffer unless told otherwise.
     rx = int(overrides.get("rxBuffer", 64))
     link = SerialLink(LinkSettings(ok_timeout=2.0, nudges=3, handshake_timeout=2.0,

@@ -44,6 +44,11 @@ def full_snapshot() -> dict:
         "slicer": {"durations": Buckets((1.0, 10.0)).snapshot(), "failures": 2},
         "metrics": {"start_time_s": 1_700_000_000.0,
                     "jobs_finished": {"completed": 2, "failed": 0}},
+        "connections": {"open": {"control": 3, "metrics": 1},
+                        "refused": {"control": 2, "metrics": 0},
+                        "dropped": {"idle": 4, "too_large": 1, "budget": 1,
+                                    "slow_reader": 1, "room": 7},
+                        "events_dropped": 12},
     }
 
 
