@@ -31,6 +31,7 @@ from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
 from slicer.printhead import Printhead
 from slicer.replay import check as replay
 from slicer.replay.check import replay_check
+from slicer.replay.passes import Rules, _bridging
 from slicer.replay.samples import Samples, geometry_from_header, move_lengths
 from slicer.replay.support import (
     OVERHANG_RUN,
@@ -132,8 +133,9 @@ def _verdicts(plan: PrintPlan, mesh: trimesh.Trimesh, settings: ProcessSettings 
                          bead_area, w, t)[1]
     judged = replay.judged_samples(len(s))
     ok = strict_support(s, t, w, 150.0, judged=judged)
-    bridge = replay._bridging(replay.model_index(mesh, w), s, ok, t, w,
-                              settings.infill_density)
+    rules = Rules(w, t, settings.infill_density, settings.perimeters, 150.0,
+                  replay.JUDGE_STRIDE, replay.INSIDE_SLACK * w)
+    bridge = _bridging(replay.model_index(mesh, w), s, judged, ok, rules)
     return judged, ok, bridge, s
 
 
