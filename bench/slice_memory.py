@@ -1,16 +1,22 @@
 """Peak RSS of ``hostctl slice`` on generated parts, each in a child process of its own.
 
-Run: ``.venv/bin/python bench/slice_memory.py [--parts box60 tower pipe2 ...] [--cap-gb 4]
-[--base DIR] [--figures]``. Each part is written as an STL into a temporary folder and sliced
-(replay check included, default config) by ``hostctl slice`` run in a child process, under
-an address-space limit of ``--cap-gb`` (a part that needs more fails with a ``MemoryError``
-instead of taking the machine). Printed per part: its volume, the child's peak resident set
-(``ru_maxrss`` from ``os.wait4``: the slicing process itself, not its forked layer
-workers), wall seconds, the replay's seconds, and the outcome (``ok``, or the exit status
-and the last line printed: a refusal is one line), with ``--figures`` the replay's figures.
-``--base DIR`` runs the slices with ``PYTHONPATH=DIR`` (another checkout, e.g. ``git
-worktree add /tmp/base HEAD``) to compare versions; run both in turn, not at once: the
-machine's memory is shared.
+Run: ``.venv/bin/python bench/slice_memory.py [--parts box60 tower pipe2 cross ...]
+[--cap-gb 4] [--base DIR] [--figures] [--allow-overhang]``. Each part is written as an STL
+into a temporary folder and sliced (replay check included, default config) by ``hostctl
+slice`` run in a child process, under an address-space limit of ``--cap-gb`` (a part that
+needs more fails with a ``MemoryError`` instead of taking the machine). Printed per part:
+its volume, the child's peak resident set (``ru_maxrss`` from ``os.wait4``: the slicing
+process itself, not its forked layer workers), wall seconds, the replay's seconds, and the
+outcome (``ok``, or the exit status and the last line printed: a refusal is one line), with
+``--figures`` the replay's figures. ``--base DIR`` runs the slices with ``PYTHONPATH=DIR``
+(another checkout, e.g. ``git worktree add /tmp/base HEAD``) to compare versions; run both
+in turn, not at once: the machine's memory is shared.
+
+``cross`` is the 152 cm³ hollow cross fitting of 50 mm pipes
+(:func:`slicer.mesh.samples.pipe_cross`, 7.5 M samples at 0.2 mm), whose replay the check
+refused for its memory before it went by tiles and chunks; its five-axis slice has
+unsupported wall layers over air, so ``--allow-overhang`` (which a checkout before it does
+not know) has it written rather than refused after the check.
 """
 
 from __future__ import annotations
@@ -45,9 +51,15 @@ def _pipe2() -> trimesh.Trimesh:
     return samples.pipe2()
 
 
+def _cross() -> trimesh.Trimesh:
+    from slicer.mesh import samples
+
+    return samples.pipe_cross()
+
+
 PARTS: dict[str, Callable[[], trimesh.Trimesh]] = {
     "box60": _box(60, 60, 10), "tower": _box(30, 30, 100), "box100": _box(100, 100, 10),
-    "pipe2": _pipe2, "pipe2x2": _pipe2_x2, "box250": _box(250, 250, 20)}
+    "pipe2": _pipe2, "pipe2x2": _pipe2_x2, "box250": _box(250, 250, 20), "cross": _cross}
 
 # parts wider than the default platform (radius 150 mm) are sliced with a config of their own
 CONFIGS = {"box250": "machine:\n  platform_radius: 200\n"}
@@ -67,16 +79,17 @@ sys.exit(code)
 """
 
 
-def run_part(stl: Path, cap: int, pythonpath: str, config: str | None = None
-             ) -> dict[str, object]:
-    """Slice ``stl`` (with the config text ``config``, else the default config) in a child
-    process limited to ``cap`` bytes of address space: the outcome, wall and replay seconds,
-    replay figures and ``rss_mib``, the child's peak resident set."""
-    extra = []
+def run_part(stl: Path, cap: int, pythonpath: str, config: str | None = None,
+             options: tuple[str, ...] = ()) -> dict[str, object]:
+    """Slice ``stl`` (with the config text ``config``, else the default config, and the
+    ``hostctl slice`` ``options``) in a child process limited to ``cap`` bytes of address
+    space: the outcome, wall and replay seconds, replay figures and ``rss_mib``, the child's
+    peak resident set."""
+    extra = list(options)
     if config is not None:
         cfg = stl.with_suffix(".yaml")
         cfg.write_text(config)
-        extra = ["--config", str(cfg)]
+        extra += ["--config", str(cfg)]
 
     def limit() -> None:
         resource.setrlimit(resource.RLIMIT_AS, (cap, cap))
@@ -114,6 +127,8 @@ def main() -> None:
                         help="address-space limit of each slice, GB (default 4)")
     parser.add_argument("--base", help="checkout to slice with instead of this one")
     parser.add_argument("--figures", action="store_true", help="print the replay's figures")
+    parser.add_argument("--allow-overhang", action="store_true",
+                        help="slice with --allow-overhang (not for a checkout before it)")
     args = parser.parse_args()
     pythonpath = str(Path(args.base).resolve() if args.base else ROOT)
     print(f"slicer from {pythonpath}")
@@ -124,7 +139,8 @@ def main() -> None:
             mesh = PARTS[name]()
             stl = Path(tmp) / f"{name}.stl"
             mesh.export(stl)
-            r = run_part(stl, int(args.cap_gb * 1e9), pythonpath, CONFIGS.get(name))
+            r = run_part(stl, int(args.cap_gb * 1e9), pythonpath, CONFIGS.get(name),
+                         ("--allow-overhang",) if args.allow_overhang else ())
             print(f"{name:8s} {mesh.volume / 1000:10.1f} {r['rss_mib']:12.0f} "
                   f"{r['wall_s']:7.1f} {r['replay_s']:8.2f}  {r['outcome']}", flush=True)
             assert str(r.get("slicer", pythonpath)).startswith(pythonpath), r["slicer"]

@@ -16,7 +16,7 @@ import logging
 import os
 import time
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
 from typing import Any
@@ -36,6 +36,33 @@ CANCELLED = "slicing stopped: the job was cancelled"
 
 class SliceError(Exception):
     """The model cannot be sliced (corrupt STL, too large, slicer failure)."""
+
+
+@dataclass(frozen=True)
+class SliceOptions:
+    """What a job asks of its slice beyond the daemon's config.
+
+    Attributes
+    ----------
+    allow_overhang : bool
+        Keep a file whose replay finds unsupported wall layers (with a warning) instead of
+        refusing it.
+    decompose : dict of str to int
+        ``seed`` and ``parts`` over ``decompose.seed`` / ``decompose.parts``.
+    """
+
+    allow_overhang: bool = False
+    decompose: Mapping[str, int] = field(default_factory=dict)
+
+    def config_values(self, values: Mapping[str, Any]) -> dict[str, Any]:
+        """``values`` (dotted config keys) with the decomposition settings asked for."""
+        return {**values, **{f"decompose.{k}": v for k, v in self.decompose.items()}}
+
+    def cache_profile(self, values: Mapping[str, Any]) -> dict[str, Any]:
+        """The profile keying the cache: a file let through with unsupported wall layers is
+        never served to a job that did not ask for it."""
+        profile = profile_of(self.config_values(values))
+        return {**profile, "allow_overhang": True} if self.allow_overhang else profile
 
 
 @dataclass(frozen=True)
@@ -74,30 +101,35 @@ def code_digest() -> str:
 
 
 def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str,
-                    name: str | None = None) -> dict[str, Any]:
+                    name: str | None = None, allow_overhang: bool = False) -> dict[str, Any]:
     """Runs in the worker process: slice ``stl_path`` with config ``values`` to ``out_path``.
 
     An error is one line naming the upload as ``name`` (the operator's file name), not the
-    spool file it is kept in.
+    spool file it is kept in, first. A file with unsupported wall layers is refused unless
+    ``allow_overhang``; a refusal's advice names ``hostctl print``'s options.
 
     The G-code is written to a temporary name and renamed, so a crash never leaves a partial
     file under the cache key.
     """
     from hostd.config import convert
     from hostd.config.loader import Config
+    from slicer.advice import PRINT_OPTIONS
     from slicer.gcode import write_gcode
     from slicer.pipeline import slice_model
 
     cfg = Config(values, "<daemon>")
     tmp = f"{out_path}.{os.getpid()}.tmp"
     try:
-        result = slice_model(stl_path, **convert.slice_inputs(cfg))
+        result = slice_model(stl_path, allow_overhang=allow_overhang, knobs=PRINT_OPTIONS,
+                             **convert.slice_inputs(cfg))
         write_gcode(tmp, result.lines)
     except Exception as exc:  # the slicer's own errors, reported as one line to the operator
         Path(tmp).unlink(missing_ok=True)
         text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         if name:
             text = text.replace(stl_path, name).replace(Path(stl_path).name, name)
+            if not text.startswith(f"{name}: "):  # a refusal of the slicer's own
+                text = f"{name}: {text}"
         raise SliceError(text) from None
     os.replace(tmp, out_path)
     return _summary(result)
@@ -112,17 +144,21 @@ def _summary(result: Any) -> dict[str, Any]:
             "replay": {k: v for k, v in result.replay.items()
                        if isinstance(v, int | float)},
             "merged_shells": int(result.merged_shells),
-            "base_note": result.base_note}
+            "base_note": result.base_note,
+            "unsupported_wall_layers": len(result.replay.get("unsupported_wall_layers", [])),
+            "overhang_warning": result.warning}
 
 
 def sliced_reason(info: dict[str, Any]) -> str:
-    """The job's reason for READY after a slice: ``"sliced"``, the shells merged, and the
-    face the part was turned to stand on (or a much larger one it could stand on)."""
+    """The job's reason for READY after a slice: ``"sliced"``, the shells merged, the face
+    the part was turned to stand on (or a much larger one it could stand on), and the
+    unsupported wall layers let through (``--allow-overhang``)."""
     merged = int(info.get("merged_shells") or 0)
     parts = ["sliced"] + (
         [f"merged {merged} overlapping shells of the file into one solid"] if merged else [])
-    note = info.get("base_note")
-    return "; ".join(parts + ([str(note)] if note else []))
+    note, warning = info.get("base_note"), info.get("overhang_warning")
+    return "; ".join(parts + ([str(note)] if note else [])
+                     + ([f"warning: {warning}"] if warning else []))
 
 
 class SlicingWorker:
@@ -152,11 +188,13 @@ class SlicingWorker:
         self._cancelling = False
         self._running = False  # a slice runs in the worker process (not a cache look-up)
 
-    async def slice(self, stl_path: Path, stl_sha: str, name: str | None = None
-                    ) -> SliceOutcome:
-        """The G-code of the STL at ``stl_path`` (its sha256 ``stl_sha``), from the cache or
-        sliced in the worker; :class:`SliceError` naming the upload ``name``."""
-        key = cache_key(stl_sha, self.profile, self.code)
+    async def slice(self, stl_path: Path, stl_sha: str, name: str | None = None,
+                    options: SliceOptions | None = None) -> SliceOutcome:
+        """The G-code of the STL at ``stl_path`` (its sha256 ``stl_sha``) sliced as
+        ``options`` ask, from the cache or sliced in the worker; :class:`SliceError` naming
+        the upload ``name``."""
+        options = options or SliceOptions()
+        key = cache_key(stl_sha, options.cache_profile(self.values), self.code)
         out = self.cache.gcode_path(key)
         self.active += 1  # from here a cancel counts: one during the look-up stops the slice
         self._cancelling = False
@@ -169,8 +207,9 @@ class SlicingWorker:
                 raise SliceError(CANCELLED)
             started = time.monotonic()
             self._running = True
-            info = await self.process.run(slice_in_worker, str(stl_path), self.values, str(out),
-                                          name)
+            info = await self.process.run(slice_in_worker, str(stl_path),
+                                          options.config_values(self.values), str(out), name,
+                                          options.allow_overhang)
         except WorkerDied:
             for tmp in out.parent.glob(f"{out.name}.*.tmp"):  # the dead worker's partial file
                 tmp.unlink(missing_ok=True)

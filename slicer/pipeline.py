@@ -3,7 +3,9 @@
 Used by ``hostctl slice`` and the daemon's slicing worker: a plain function with a plain-data,
 picklable result. A file whose replay finds a head collision is refused
 (:class:`CollisionError`), never returned, and so is one with a layer printed in the air
-(:class:`OverhangError`); so is a part wider than the platform, a program
+(:class:`OverhangError`), and one with unsupported wall layers unless the caller allows them
+(:class:`UnsupportedWallsError`; ``allow_overhang`` writes it with a warning); so is a part
+wider than the platform, a program
 that prints nothing or moves an axis beyond its travel (:class:`~slicer.envelope.EnvelopeError`,
 a :class:`~slicer.mesh.errors.MeshError`: bad input), checked by :mod:`slicer.envelope`.
 """
@@ -24,6 +26,7 @@ from numpy.typing import ArrayLike
 
 from kinematics.machine import MachineGeometry
 from slicer import envelope
+from slicer.advice import CONFIG_KEYS, Knobs, overhang_message, walls_message, walls_warning
 from slicer.gcode import Draft, E, MachineSetup, draft, parse_words
 from slicer.hugepages import small_pages
 from slicer.paths import LEAN, NO_HINTS, LeanHints, SlicingError, plan_print
@@ -32,8 +35,8 @@ from slicer.printhead import Printhead
 from slicer.replay import (
     ModelIndex,
     ReplayReport,
+    WallSamples,
     model_index,
-    overhang_text,
     replay_check,
     shell_depth,
     shell_grid,
@@ -54,14 +57,49 @@ class SliceError(ValueError):
     """The part cannot be sliced into a checked file; ``str()`` is one line."""
 
 
-class CollisionError(SliceError):
+class ReplayRefusal(SliceError):
+    """The replay check refused the file.
+
+    Attributes
+    ----------
+    plan : PrintPlan or None
+        The plan refused, for a preview.
+    marks : (k, 3) float
+        Platform-frame points of the failing region (for a preview to mark; may be empty).
+    """
+
+    def __init__(self, message: str, plan: PrintPlan | None = None,
+                 marks: np.ndarray | None = None) -> None:
+        super().__init__(message)
+        self.plan = plan
+        self.marks = np.zeros((0, 3)) if marks is None else marks
+
+    def __reduce__(self) -> tuple[type[ReplayRefusal], tuple[str]]:
+        return type(self), (str(self),)  # the message alone crosses a process boundary
+
+
+class CollisionError(ReplayRefusal):
     """The replay found head collisions: the file is refused."""
 
 
-class OverhangError(SliceError):
+class OverhangError(ReplayRefusal):
     """The replay found a layer printed in the air (over both of
     :data:`~slicer.replay.support.OVERHANG_SHARE` and ``OVERHANG_RUN``): the file is
     refused."""
+
+
+class UnsupportedWallsError(ReplayRefusal):
+    """The replay found unsupported wall layers and the caller did not allow them: the file
+    is refused; ``marks`` are the unsupported wall samples."""
+
+
+@dataclass(frozen=True)
+class OverhangPolicy:
+    """What unsupported wall layers do: refuse the file, or with ``allow`` let it through
+    with a warning; ``knobs`` name what a refusal suggests (:class:`~slicer.advice.Knobs`)."""
+
+    allow: bool = False
+    knobs: Knobs = CONFIG_KEYS
 
 
 @dataclass
@@ -93,6 +131,10 @@ class SliceResult:
         Why the part stands on another flat face than its own bottom, or a much larger face
         it could stand on (:class:`~slicer.mesh.placement.BaseChoice`); None when there is nothing
         to say.
+    walls : WallSamples or None
+        The replay's unsupported wall samples (platform frame), for a preview; None unchecked.
+    warning : str or None
+        One line: the file has unsupported wall layers and was written as the caller allowed.
     """
 
     lines: list[str]
@@ -107,12 +149,15 @@ class SliceResult:
     plan: PrintPlan | None = None
     merged_shells: int = 0
     base_note: str | None = None
+    walls: WallSamples | None = None
+    warning: str | None = None
 
     def summary(self) -> dict[str, object]:
-        """The result without the G-code lines and the plan."""
-        d = asdict(self)
+        """The result without the G-code lines, the plan and the wall samples."""
+        d = asdict(replace(self, walls=None))
         d.pop("lines")
         d.pop("plan")
+        d.pop("walls")
         return d
 
 
@@ -160,7 +205,8 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
                 decompose_settings: DecomposeSettings | None = None, platform_radius: float = 150.0,
                 planar: bool = False, build_volume: np.ndarray | None = None,
                 check: bool = True, keep_plan: bool = False,
-                travel: ArrayLike = envelope.DEFAULT_TRAVEL) -> SliceResult:
+                travel: ArrayLike = envelope.DEFAULT_TRAVEL, allow_overhang: bool = False,
+                knobs: Knobs | None = None) -> SliceResult:
     """Slice a part to checked G-code.
 
     Parameters
@@ -179,10 +225,14 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         Keep the PrintPlan in the result (for previews).
     travel : (3, 2) float
         [min, max] of machine X, Y, Z (``machine.x_range`` ...), mm.
+    allow_overhang : bool
+        Return a file with unsupported wall layers (with ``warning``) instead of refusing it.
+    knobs : slicer.advice.Knobs, optional
+        How a refusal names what to try (default: the config keys).
 
     Raises
     ------
-    SliceError, CollisionError, OverhangError
+    SliceError, CollisionError, OverhangError, UnsupportedWallsError
         And the loaders' MeshError / DecompositionError / SlicingError, all one line.
     slicer.envelope.EnvelopeError
         (a MeshError) The part is wider than the platform, nothing is printed, or a move
@@ -212,18 +262,27 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         travel_ranges = tuple((float(lo), float(hi)) for lo, hi in np.reshape(travel, (3, 2)))
         setup = MachineSetup(geometry, head, platform_radius, travel_ranges)
         seed = None if planar else (decompose_settings.seed if decompose_settings else 0)
-        first = _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name,
-                        seed)
+        policy = OverhangPolicy(allow_overhang, knobs or CONFIG_KEYS)
 
-        def again(hints: LeanHints) -> tuple[SliceResult, np.ndarray]:
+        def again(hints: LeanHints) -> _Try:
             assert plan.decomposition is not None
             t2 = time.perf_counter()
             replanned = plan_print(plan.decomposition, settings, geometry, head, lean=LEAN,
                                    hints=hints)
             return _finish(mesh, replanned, settings, setup, index, {}, t2, keep_plan, name,
-                           seed)
+                           seed, policy, judge=False)
 
-        result = _repaired(first, again if plan.decomposition is not None else None, timings)
+        retry = again if plan.decomposition is not None else None
+        leaned = 0
+        try:
+            first = _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name,
+                            seed, policy, judge=False)
+        except OverhangError as exc:  # a layer in the air upright: leaning may hold it
+            if retry is None:
+                raise
+            first, leaned = _leaned_instead(exc, retry), 1
+        best = _repaired(first, retry, timings, done=leaned)
+        result = _judged(best, seed, policy)
         return replace(result, merged_shells=placement.merged_shells,
                        base_note=None if plan.base is None else plan.base.note)
 
@@ -290,64 +349,98 @@ def _with_grid(index: Future[ModelIndex], settings: ProcessSettings) -> ModelInd
     return model
 
 
-def _repaired(first: tuple[SliceResult, np.ndarray],
-              again: Callable[[LeanHints], tuple[SliceResult, np.ndarray]] | None,
-              timings: dict[str, float], rounds: int | None = None) -> SliceResult:
-    """The closed loop: while the best result so far has walls printed in the air (the
-    replay's unsupported wall layers), plan again with the root's layers leaning
-    (:mod:`slicer.paths.upright`) and hints at the unsupported walls of every try
-    (:class:`~slicer.paths.LeanHints`: it leans harder there; the first lean takes none),
-    at most ``rounds`` times;
-    the best result (fewest such layers, then most walls supported) is kept. A try that
-    fails outright (a collision, a layer in the air) ends the loop. The rounds' seconds
-    are ``timings["repair"]`` and their number ``timings["repair_rounds"]``; ``rounds``
-    defaults to :data:`REPAIR_ROUNDS`."""
-    best, misses = first
+@dataclass
+class _Try:
+    """One plan's file: the result, its replay report (None unchecked) and the plan."""
+
+    result: SliceResult
+    report: ReplayReport | None
+    plan: PrintPlan
+
+    @property
+    def over_air(self) -> int:
+        """Wall layers over air (what a file is refused for)."""
+        return 0 if self.report is None else self.report.wall_layers_over_air
+
+    def rank(self) -> tuple[int, int, float]:
+        """Fewer wall layers over air, then fewer unsupported wall layers, then more walls
+        held."""
+        if self.report is None:
+            return (0, 0, 0.0)
+        return (self.over_air, len(self.report.unsupported_wall_layers),
+                -self.report.wall_supported)
+
+
+def _leaned_instead(error: OverhangError, again: Callable[[LeanHints], _Try]) -> _Try:
+    """The first leaning try, for a part whose upright try printed a layer in the air;
+    ``error`` again when that fails too."""
+    try:
+        return again(NO_HINTS)
+    except (SliceError, SlicingError) as exc:
+        log.info("leaning after a layer in the air failed: %s", exc)
+        raise error from None
+
+
+def _repaired(first: _Try, again: Callable[[LeanHints], _Try] | None,
+              timings: dict[str, float], rounds: int | None = None, done: int = 0) -> _Try:
+    """The closed loop: while the best try so far has wall layers over air, plan again
+    with the root's layers leaning (:mod:`slicer.paths.upright`) and hints at the
+    unsupported walls of every leaning try (:class:`~slicer.paths.LeanHints`: it leans
+    harder there; the first lean takes none, the upright try's misses are not its own), at
+    most ``rounds`` times (default :data:`REPAIR_ROUNDS`); the best try (:meth:`_Try.rank`)
+    is kept. A try that fails outright (a collision, a layer in the air, a plane the head
+    cannot clear) ends the loop. The rounds' seconds are ``timings["repair"]`` and their
+    number ``timings["repair_rounds"]``; ``done`` rounds were taken before (``first`` is
+    then a leaning try)."""
+    best = last = first
     hints = NO_HINTS
     t0 = time.perf_counter()
-    done = 0
     rounds = REPAIR_ROUNDS if rounds is None else rounds
-    while again is not None and done < rounds and _bad_walls(best) and len(misses):
-        if done:  # the first lean has no hints: the upright try's misses are not its own
-            hints = hints.more(misses)
+    while again is not None and done < rounds and best.over_air and _misses(last).size:
+        if done:
+            hints = hints.more(_misses(last))
         done += 1
         try:
-            result, misses = again(hints)
+            last = again(hints)
         except (SliceError, SlicingError) as exc:
             log.info("repair round %d failed: %s", done, exc)
             break
-        log.info("repair round %d: %d unsupported wall layers (best so far %d)", done,
-                 _bad_walls(result), _bad_walls(best))
-        if _rank(result) < _rank(best):
-            best = result
+        log.info("repair round %d: %d wall layers over air (best so far %d)", done,
+                 last.over_air, best.over_air)
+        if last.rank() < best.rank():
+            best = last
     if done:
-        timings["repair"] = time.perf_counter() - t0
+        timings["repair"] = timings.get("repair", 0.0) + time.perf_counter() - t0
         timings["repair_rounds"] = float(done)
-        best.timings.update({k: timings[k] for k in ("repair", "repair_rounds")})
+        best.result.timings.update({k: timings[k] for k in ("repair", "repair_rounds")})
     return best
 
 
-def _bad_walls(result: SliceResult) -> int:
-    """How many wall layers the result's replay found printed in the air."""
-    layers = result.replay.get("unsupported_wall_layers", [])
-    return len(layers) if isinstance(layers, list) else 0
+def _misses(attempt: _Try) -> np.ndarray:
+    """The try's unsupported wall samples (platform frame), (k, 3)."""
+    if attempt.report is None:
+        return np.zeros((0, 3))
+    return np.asarray(attempt.report.unsupported_walls.p, dtype=float).reshape(-1, 3)
 
 
-def _rank(result: SliceResult) -> tuple[int, float]:
-    """Fewer unsupported wall layers first, then more walls supported."""
-    walls = result.replay.get("wall_supported", 1.0)
-    return (_bad_walls(result), -float(walls) if isinstance(walls, int | float) else 0.0)
+def _judged(attempt: _Try, seed: int | None, policy: OverhangPolicy) -> SliceResult:
+    """The kept try's result, refused (:class:`UnsupportedWallsError`) or warned about as
+    ``policy`` says when it has wall layers over air (:func:`walls_verdict`)."""
+    if attempt.report is None:
+        return attempt.result
+    warning = walls_verdict(attempt.report, attempt.plan, seed, policy)
+    return replace(attempt.result, warning=warning)
 
 
 def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
             setup: MachineSetup, index: Future[ModelIndex] | None, timings: dict[str, float],
-            t0: float, keep_plan: bool, name: str = "<mesh>", seed: int | None = None
-            ) -> tuple[SliceResult, np.ndarray]:
-    """G-code for ``plan``, its envelope check and, when ``index`` is given, its replay check;
-    with the replay's unsupported wall samples (platform frame, (k, 3)).
+            t0: float, keep_plan: bool, name: str = "<mesh>", seed: int | None = None,
+            policy: OverhangPolicy = OverhangPolicy(), judge: bool = True) -> _Try:
+    """G-code for ``plan``, its envelope check and, when ``index`` is given, its replay check.
 
-    ``seed`` is the decomposition's (``None`` for the planar control), for the advice of an
-    :class:`OverhangError`.
+    ``seed`` is the decomposition's (``None`` for the planar control), for the advice of a
+    refusal; ``policy`` says what unsupported wall layers do, when ``judge`` (else the
+    caller judges the try it keeps, :func:`_judged`).
 
     The replay reads the program's numbers, so the estimate and the text are computed on a
     thread of their own meanwhile (mostly numpy: the replay loses little of the GIL to it).
@@ -356,21 +449,25 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
     moves = draft(plan, settings, setup)
     check_envelope(moves, name)
     timings["gcode"] = time.perf_counter() - t1
-    report: dict[str, object] = {}
-    misses = np.zeros((0, 3))
+    report: ReplayReport | None = None
+    warning: str | None = None
     if index is None:
         res = _timed(moves.finish, timings, "text")
     else:
         with ThreadPoolExecutor(1, "gcode-text") as writer:
             text = writer.submit(_timed, moves.finish, timings, "text")
-            rep = _replayed(moves, mesh, setup, index, timings, seed)
-            report, misses = rep.to_dict(), rep.wall_misses
+            report = _replayed(moves, mesh, setup, index, timings, seed, policy.knobs)
+            warning = walls_verdict(report, plan, seed, policy) if judge else None
             res = text.result()
-    return SliceResult(res.lines, len(plan.subparts),
-                       sum(len(sp.layers) for sp in plan.subparts), _thickness(plan),
-                       res.estimate.header(), report, res.transitions,
-                       {**{f"plan.{k}": v for k, v in plan.timings.items()}, **timings},
-                       time.perf_counter() - t0, plan if keep_plan else None), misses
+    result = SliceResult(res.lines, len(plan.subparts),
+                         sum(len(sp.layers) for sp in plan.subparts), _thickness(plan),
+                         res.estimate.header(), {} if report is None else report.to_dict(),
+                         res.transitions,
+                         {**{f"plan.{k}": v for k, v in plan.timings.items()}, **timings},
+                         time.perf_counter() - t0, plan if keep_plan else None,
+                         walls=None if report is None else report.unsupported_walls,
+                         warning=warning)
+    return _Try(result, report, plan)
 
 
 def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:
@@ -383,11 +480,11 @@ def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:
 
 
 def _replayed(moves: Draft, mesh: trimesh.Trimesh, setup: MachineSetup,
-              index: Future[ModelIndex], timings: dict[str, float], seed: int | None = None
-              ) -> ReplayReport:
+              index: Future[ModelIndex], timings: dict[str, float], seed: int | None = None,
+              knobs: Knobs = CONFIG_KEYS) -> ReplayReport:
     """The replay report of ``moves``; raises :class:`CollisionError` if the head hits,
     :class:`OverhangError` if a layer prints in the air (advice for decomposition ``seed``,
-    ``None``: the planar control)."""
+    ``None``: the planar control, in the caller's ``knobs``)."""
     parsed = _timed(lambda: parse_words(moves.words()), timings, "read")
     rep = _timed(lambda: replay_check(parsed, mesh, setup.head, setup.platform_radius,
                                       placed=True, index=index.result()), timings, "replay")
@@ -395,22 +492,27 @@ def _replayed(moves: Draft, mesh: trimesh.Trimesh, setup: MachineSetup,
         first = rep.collision_messages[0] if rep.collision_messages else ""
         if rep.collisions:
             raise CollisionError(f"replay found {rep.collisions} head collision(s); "
-                                 f"refusing to write the file: {first}")
-        raise OverhangError(overhang_message(rep.overhang_layers, seed))
+                                 f"refusing to write the file: {first}", moves.plan)
+        raise OverhangError(overhang_message(rep.overhang_layers, seed, knobs), moves.plan,
+                            _platform_points([d["point"] for d in rep.overhang_layers],
+                                             moves.plan.placement))
     return rep
 
 
-def overhang_message(layers: list[dict[str, object]], seed: int | None) -> str:
-    """One line for a replay's ``overhang_layers`` (worst first, at least one): the worst
-    layer, how many more, and what to try (another decomposition seed; for the planar
-    control (``seed`` None), the five-axis slice)."""
-    worst = layers[0]
-    more = f" (and {len(layers) - 1} more layers)" if len(layers) > 1 else ""
-    if seed is None:
-        advice = ("the planar control cannot print this overhang without support; slice it "
-                  "five-axis (without --planar)")
-    else:
-        advice = (f"the decomposition left an overhang in sub-part {worst['subpart']}; try "
-                  f"decompose.seed {seed + 1} (or another seed), or set decompose.parts")
-    return (f"replay found a layer printed in the air; refusing to write the file: "
-            f"{overhang_text(worst)}{more}; {advice}")
+def walls_verdict(rep: ReplayReport, plan: PrintPlan, seed: int | None,
+                  policy: OverhangPolicy) -> str | None:
+    """``None`` for a file without unsupported wall layers; for one with them, the warning
+    line when ``policy`` allows them, else :class:`UnsupportedWallsError` (one line: the
+    worst layer and what to try, ``marks`` the unsupported wall samples)."""
+    if not rep.wall_layers:
+        return None
+    if policy.allow:
+        return walls_warning(rep, policy.knobs)
+    raise UnsupportedWallsError(walls_message(rep, seed, policy.knobs), plan,
+                                rep.unsupported_walls.p)
+
+
+def _platform_points(points: list[list[float] | None], placement: np.ndarray) -> np.ndarray:
+    """Part-frame points (those not None) moved by ``placement`` (4, 4), (k, 3)."""
+    p = np.array([q for q in points if q is not None], dtype=float).reshape(-1, 3)
+    return p @ placement[:3, :3].T + placement[:3, 3]

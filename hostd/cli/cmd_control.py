@@ -28,6 +28,7 @@ from hostd.cli.errors import (
     EXIT_USAGE,
     CliError,
 )
+from hostd.cli.options import add_allow_overhang, add_decompose_options, decompose_overrides
 from hostd.cli.text import event_text, printable
 
 FINAL = {"completed", "failed", "cancelled", "interrupted"}
@@ -46,6 +47,8 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("--wait", action="store_true", help="show progress until the job ends")
     p.add_argument("--kind", choices=("stl", "gcode"),
                    help="what FILE is, when its extension does not say (.stl, .gcode)")
+    add_decompose_options(p)
+    add_allow_overhang(p, "an STL: print it")
     _json_flag(p, "the job (with --wait: as job.get gives it, once the job ended)")
     p.set_defaults(func=cmd_print)
 
@@ -127,6 +130,7 @@ def _emit_json(data: Any) -> None:
 
 def cmd_print(args: argparse.Namespace) -> int:
     path = Path(args.file)
+    options = slice_options(args)
     size = _upload_size(path)
     with _client(args, timeout=600.0) as c:
         limit = c.call("server.info").get("max_upload_bytes")
@@ -142,7 +146,7 @@ def cmd_print(args: argparse.Namespace) -> int:
                                                "subpart_started", "transition_failed",
                                                "queue.state"])
         job = _submit(c, path.name, data, None if args.json else _upload_progress(path.name),
-                      kind=args.kind)
+                      kind=args.kind, options=options)
         if not args.wait:
             if args.json:
                 _emit_json(job)
@@ -159,7 +163,17 @@ def cmd_print(args: argparse.Namespace) -> int:
         except KeyboardInterrupt:
             raise CliError(f"interrupted: job {job['id']} goes on (hostctl watch follows it; "
                            f"hostctl cancel {job['id']} stops it)", EXIT_INTERRUPTED) from None
+    if final in ("failed", "cancelled"):  # the reason on stderr too (a refused slice's line)
+        raise CliError(f"job {job['id']} {final}: {reason}", EXIT_FAILED)
     return EXIT_OK if final == "completed" else EXIT_FAILED
+
+
+def slice_options(args: argparse.Namespace) -> dict[str, Any]:
+    """``job.submit``'s slice parameters for the options given (none for the others)."""
+    out: dict[str, Any] = dict(decompose_overrides(args))
+    if args.allow_overhang:
+        out["allow_overhang"] = True
+    return out
 
 
 def _emit_final(c: Client, job_id: int, state: str, reason: str) -> None:
@@ -212,10 +226,12 @@ def _say_held(c: Client) -> None:
 
 def _submit(c: Client, name: str, data: bytes,
             progress: Callable[[int, int], None] | None = None,
-            kind: str | None = None) -> dict[str, Any]:
+            kind: str | None = None, options: dict[str, Any] | None = None) -> dict[str, Any]:
     """Queue the file: in one ``job.submit``, or when it is larger than :data:`PART_BYTES` in
     parts (``job.upload``), so that no message holds the daemon's event loop long;
-    ``progress(sent, total)`` after each part."""
+    ``progress(sent, total)`` after each part. ``options``: ``job.submit``'s slice
+    parameters (``allow_overhang``, ``seed``, ``parts``)."""
+    extra = options or {}
     if len(data) > PART_BYTES:
         view = memoryview(data)
         for offset in range(0, len(data), PART_BYTES):
@@ -223,9 +239,9 @@ def _submit(c: Client, name: str, data: bytes,
             c.call("job.upload", data=part, offset=offset)
             if progress is not None:
                 progress(min(offset + PART_BYTES, len(data)), len(data))
-        return c.call("job.submit", timeout=SUBMIT_TIMEOUT, name=name, kind=kind)
+        return c.call("job.submit", timeout=SUBMIT_TIMEOUT, name=name, kind=kind, **extra)
     return c.call("job.submit", timeout=SUBMIT_TIMEOUT, name=name, kind=kind,
-                  data=base64.b64encode(data).decode())
+                  data=base64.b64encode(data).decode(), **extra)
 
 
 def _upload_progress(name: str) -> Callable[[int, int], None] | None:
@@ -412,8 +428,16 @@ def cmd_jobs(args: argparse.Namespace) -> int:
     for j in jobs:
         print(f"{j['id']:>4}  {j['state']:<11} {j['progress'] * 100:5.1f}%  "
               f"line {j['acked_lines']}/{j['total_lines']}  {printable(j['name'])}"
+              + _slice_flags(j)
               + (f"  ({printable(j['reason'])})" if j.get("reason") else ""))
     return EXIT_OK
+
+
+def _slice_flags(job: dict[str, Any]) -> str:
+    """``  [--allow-overhang --seed 3]``: the slice options a job was submitted with."""
+    flags = (["--allow-overhang"] if job.get("allow_overhang") else []) + [
+        f"--{k} {v}" for k, v in sorted((job.get("slice_options") or {}).items())]
+    return f"  [{' '.join(flags)}]" if flags else ""
 
 
 def _show_job(job: dict[str, Any], as_json: bool) -> None:

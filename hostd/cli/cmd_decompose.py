@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import json
+import re
 import time
 from pathlib import Path
 from typing import Any
@@ -10,9 +12,9 @@ from typing import Any
 import numpy as np
 
 from hostd.cli.errors import EXIT_FAILED, CliError
+from hostd.cli.options import add_decompose_options, bounded
 from hostd.config import Config, ConfigError, load
 from hostd.config.paths import INSTALLED_CONFIG, offline_config
-from hostd.config.schema import SCHEMA
 
 
 def register(subparsers: Any) -> None:
@@ -20,13 +22,14 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "decompose", help="split an STL into support-free sub-parts (offline)",
         description="Decompose MODEL.stl into sub-parts printable along their own directions; "
-                    "writes decomposition.json, part_<k>.stl and preview.png into DIR.")
+                    "writes decomposition.json, part_<k>.stl and preview.png into DIR. A "
+                    "refused decomposition (exit 1) still writes decomposition.json (the "
+                    "refusal) and preview.png (the part, the point it names in red).")
     p.add_argument("model", help="ASCII or binary STL")
     p.add_argument("-o", "--output", required=True, help="output directory")
-    p.add_argument("--parts", type=int, default=None, help="coarse K (default: config; 0 auto)")
+    add_decompose_options(p)
     p.add_argument("--root", type=int, default=None,
                    help="coarse region of the root (the numbers labelled in preview.png)")
-    p.add_argument("--seed", type=int, default=None, help="seed (default: config)")
     p.add_argument("--config", default=None, metavar="FILE",
                    help=f"config file (default: {INSTALLED_CONFIG} if it exists, else the "
                         "shipped defaults)")
@@ -41,21 +44,12 @@ def _settings(cfg: Config, args: argparse.Namespace) -> Any:
                             angle_max=cfg["decompose.plane_angle_max"],
                             area_growth_max=cfg["decompose.area_growth_max"],
                             max_iterations=cfg["decompose.max_iterations"])
-    parts = cfg["decompose.parts"] if args.parts is None else _bounded("parts", args.parts)
-    seed = cfg["decompose.seed"] if args.seed is None else _bounded("seed", args.seed)
+    parts = cfg["decompose.parts"] if args.parts is None else bounded("parts", args.parts)
+    seed = cfg["decompose.seed"] if args.seed is None else bounded("seed", args.seed)
     if args.root is not None and args.root < 0:
         raise CliError(f"--root {args.root}: region numbers start at 0")
     return DecomposeSettings(parts=parts, root=args.root, seed=seed, search=search,
                              nozzle_diameter=cfg["machine.nozzle_diameter"])
-
-
-def _bounded(key: str, value: int) -> int:
-    """``--parts``/``--seed`` within the bounds of their config keys (``decompose.*``)."""
-    field = SCHEMA["decompose"][key]
-    lo, hi = getattr(field, "lo", None), getattr(field, "hi", None)
-    if (lo is not None and value < lo) or (hi is not None and value > hi):
-        raise CliError(f"--{key} {value}: must lie in [{lo:.0f}, {hi:.0f}] (as decompose.{key})")
-    return value
 
 
 def run(args: argparse.Namespace) -> int:
@@ -92,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
     except RootRegionError as exc:
         raise CliError(f"--root {exc.root}: {exc}") from None
     except DecompositionError as exc:
+        _write_refusal(Path(args.output), mesh, placement.matrix, settings, str(exc),
+                       not args.no_preview)
         raise CliError(f"{args.model}: {exc}", EXIT_FAILED) from None
     out = Path(args.output)
     try:
@@ -107,6 +103,31 @@ def run(args: argparse.Namespace) -> int:
         print(dec.base.note)
     _table(dec, time.perf_counter() - t0)
     return 0
+
+
+NEAR = re.compile(r"near \[(-?[\d.]+), (-?[\d.]+), (-?[\d.]+)\] mm")
+"""The point a refusal names (``near [x, y, z] mm``, in the frame the part stood in as
+placed: the first one a message names; those after it are other faces')."""
+
+
+def _write_refusal(out: Path, mesh: Any, placement: np.ndarray, settings: Any, reason: str,
+                   preview: bool) -> None:
+    """``decomposition.json`` holding the refusal, and ``preview.png`` the part as placed
+    with the point it names in red."""
+    from slicer.preview import render_refused
+
+    found = NEAR.search(reason)
+    points = [[float(v) for v in found.groups()]] if found else []
+    payload = {"refused": reason, "points": points, "placement": placement.tolist(),
+               "seed": settings.seed, "parts": settings.parts}
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "decomposition.json").write_text(json.dumps(payload, indent=2) + "\n",
+                                                encoding="utf-8")
+        if preview:
+            render_refused(mesh, np.array(points).reshape(-1, 3), reason, out / "preview.png")
+    except OSError as exc:
+        raise CliError(f"{out}: cannot write: {exc.strerror or exc}") from None
 
 
 def _table(dec: Any, seconds: float) -> None:

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 from hostd.cli.errors import EXIT_FAILED, CliError
+from hostd.cli.options import add_allow_overhang, add_decompose_options, decompose_overrides
 from hostd.config import ConfigError, load
 from hostd.config.paths import INSTALLED_CONFIG, offline_config
 
@@ -18,8 +20,9 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "slice", help="slice an STL to checked five-axis G-code (offline)",
         description="Decompose MODEL.stl, slice every sub-part along its own direction, write "
-                    "joint-space G-code and replay-check it; a file with head collisions or a "
-                    "layer printed in the air is refused.")
+                    "joint-space G-code and replay-check it; a file with head collisions, a "
+                    "layer printed in the air or unsupported wall layers is refused (exit 1, "
+                    "no file; --preview still drawn, the failing region in red).")
     p.add_argument("model", help="ASCII or binary STL")
     p.add_argument("-o", "--output", required=True, help="G-code file to write")
     p.add_argument("--layer-height", type=float, default=None,
@@ -30,6 +33,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--preview", default=None, help="write a PNG of the toolpaths here")
     p.add_argument("--planar", action="store_true",
                    help="3-axis control: no decomposition, horizontal layers, A = C = 0")
+    add_decompose_options(p)
+    add_allow_overhang(p, "write the file")
     p.set_defaults(func=run)
 
 
@@ -49,7 +54,7 @@ def _inputs(args: argparse.Namespace) -> dict[str, Any]:
                            f"{0.8 * cfg['machine.nozzle_diameter']:g}] mm")
         override["layer_height"] = h
     try:
-        return convert.slice_inputs(cfg, **override)
+        return convert.slice_inputs(cfg, decompose=decompose_overrides(args), **override)
     except PrintheadError as exc:
         raise CliError(f"{cfg.source}: printhead.segments: {exc}") from None
     except (TypeError, ValueError) as exc:
@@ -57,21 +62,46 @@ def _inputs(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def _slice(args: argparse.Namespace, inputs: dict[str, Any]) -> Any:
+    from slicer.advice import SLICE_OPTIONS
     from slicer.decompose import DecompositionError
     from slicer.gcode import GcodeError
     from slicer.mesh import MeshError
     from slicer.paths import SlicingError
-    from slicer.pipeline import CollisionError, SliceError, slice_model
+    from slicer.pipeline import ReplayRefusal, SliceError, slice_model
 
     try:
         return slice_model(args.model, planar=args.planar, keep_plan=args.preview is not None,
-                           **inputs)
+                           allow_overhang=args.allow_overhang, knobs=SLICE_OPTIONS, **inputs)
     except MeshError as exc:
         raise CliError(str(exc)) from None
     except GcodeError as exc:
         raise CliError(f"{args.config}: {exc}") from None
-    except (CollisionError, DecompositionError, SlicingError, SliceError) as exc:
+    except ReplayRefusal as exc:  # the file is refused, its preview still drawn
+        if args.preview and exc.plan is not None:
+            _preview(exc.plan, args.preview, exc.marks, _mark_note(exc))
         raise CliError(f"{args.model}: {exc}", EXIT_FAILED) from None
+    except (DecompositionError, SlicingError, SliceError) as exc:
+        raise CliError(f"{args.model}: {exc}", EXIT_FAILED) from None
+
+
+def _mark_note(exc: Exception) -> str:
+    """What the red points of a refusal's preview are."""
+    from slicer.pipeline import UnsupportedWallsError
+
+    if isinstance(exc, UnsupportedWallsError):
+        return "refused: unsupported wall points"
+    return "refused: layers printed in the air"
+
+
+def _preview(plan: Any, path: str, marks: Any, note: str) -> None:
+    """Draw the toolpath preview of ``plan`` with ``marks`` in red."""
+    from slicer.preview import render_toolpaths
+
+    try:
+        render_toolpaths(plan, path, marks=marks, note=note)
+    except OSError as exc:
+        raise CliError(f"cannot write: {exc.filename or path}: {exc.strerror or exc}",
+                       EXIT_FAILED) from None
 
 
 def _check_outputs(args: argparse.Namespace) -> None:
@@ -100,12 +130,14 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.output)
     try:
         write_gcode(out, result.lines)
-        if args.preview:
-            from slicer.preview import render_toolpaths
-            render_toolpaths(result.plan, args.preview)
     except OSError as exc:
         raise CliError(f"cannot write: {exc.filename or out}: {exc.strerror or exc}",
                        EXIT_FAILED) from None
+    if args.preview:
+        walls = result.walls.p if result.walls is not None else None
+        _preview(result.plan, args.preview, walls, "unsupported wall points (allowed)")
+    if result.warning:
+        print(f"hostctl: warning: {result.warning}", file=sys.stderr)
     _summary(result, out, time.perf_counter() - t0)
     return 0
 
@@ -133,7 +165,8 @@ def _summary(r: Any, out: Path, seconds: float) -> None:
         print(f"replay: inside {100 * rep['inside']:.2f}%, coverage "
               f"{100 * rep['coverage']:.2f}%, supported {100 * rep['supported']:.2f}% "
               f"(walls {100 * rep['wall_supported']:.2f}%, "
-              f"{len(rep['unsupported_wall_layers'])} unsupported wall layers; worst layer "
+              f"{len(rep['unsupported_wall_layers'])} unsupported wall layers, "
+              f"{rep.get('wall_layers_over_air', 0)} over air; worst layer "
               f"{worst_layer_text(rep.get('worst_layer'))}), collisions {rep['collisions']}")
     print(f"seconds {seconds:.2f} ({_stages(r.timings)})")
 

@@ -68,13 +68,16 @@ def decompose_settings(cfg: Config, **override: Any) -> Any:
     return DecomposeSettings(**values)
 
 
-def slice_inputs(cfg: Config, **override: Any) -> dict[str, Any]:
+def slice_inputs(cfg: Config, decompose: dict[str, Any] | None = None, **override: Any
+                 ) -> dict[str, Any]:
     """Keyword arguments of :func:`slicer.pipeline.slice_model` for this config.
 
-    ``override`` replaces process settings (e.g. ``layer_height``). Raises PrintheadError,
-    TypeError or ValueError for values the slicer cannot take.
+    ``override`` replaces process settings (e.g. ``layer_height``), ``decompose`` the
+    decomposition's (``seed``, ``parts``). Raises PrintheadError, TypeError or ValueError
+    for values the slicer cannot take.
     """
     return {"settings": process_settings(cfg, **override), "geometry": machine_geometry(cfg),
-            "head": printhead(cfg), "decompose_settings": decompose_settings(cfg),
+            "head": printhead(cfg),
+            "decompose_settings": decompose_settings(cfg, **(decompose or {})),
             "platform_radius": platform_radius(cfg), "build_volume": build_volume(cfg),
             "travel": travel(cfg)}

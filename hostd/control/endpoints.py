@@ -14,6 +14,7 @@ from functools import partial
 from typing import Any
 
 from hostd import __version__
+from hostd.config.schema import SCHEMA
 from hostd.control.codes import INVALID_PARAMS, UPLOAD_REJECTED, RpcError
 from hostd.control.host import Host
 from hostd.control.rpc import Encoded, Endpoint, Param, Registry
@@ -23,6 +24,7 @@ from hostd.events import check_names
 from hostd.jobs.spool import Staged
 from hostd.jobs.states import JobStateError, parse_state
 from hostd.link.replies import Ok, Position, Reply, Temperatures
+from hostd.slicing_worker import SliceOptions
 
 LIST_LIMIT = 100
 """Jobs ``job.list`` returns unless asked: the newest (a long history would hold the loop)."""
@@ -83,11 +85,24 @@ async def queue_hold(api: Api, ctx: Client) -> dict[str, Any]:
 # -- jobs --------------------------------------------------------------------------------------
 
 async def job_submit(api: Api, ctx: Client, name: str, data: str | None, kind: str | None,
-                     encoding: str) -> dict[str, Any]:
+                     encoding: str, allow_overhang: bool, seed: int | None,
+                     parts: int | None) -> dict[str, Any]:
+    options = SliceOptions(allow_overhang, {k: _decompose_param(k, v) for k, v in
+                                            (("seed", seed), ("parts", parts)) if v is not None})
     staged = api.uploads.take(ctx.id) if data is None else await _staged(api.host, data,
                                                                          encoding)
     jobs = api.host.jobs
-    return jobs.job_dict(await jobs.submit_staged(name, staged, kind))
+    return jobs.job_dict(await jobs.submit_staged(name, staged, kind, options))
+
+
+def _decompose_param(key: str, value: int) -> int:
+    """``seed``/``parts`` within the bounds of ``decompose.<key>``."""
+    spec = SCHEMA["decompose"][key]
+    lo, hi = getattr(spec, "lo", None), getattr(spec, "hi", None)
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise RpcError(INVALID_PARAMS, f"{key}: {value} must lie in [{lo:.0f}, {hi:.0f}] "
+                                       f"(as decompose.{key})")
+    return value
 
 
 async def _staged(host: Host, data: str, encoding: str) -> Staged:
@@ -198,7 +213,11 @@ ENDPOINTS: tuple[Endpoint, ...] = (
         Param("data", "str", required=False, doc="the file (else the job.upload parts)"),
         Param("kind", "str", required=False, choices=("stl", "gcode")),
         Param("encoding", "str", required=False, default="base64",
-              choices=("base64", "text"))),
+              choices=("base64", "text")),
+        Param("allow_overhang", "bool", required=False, default=False,
+              doc="STL: keep a file with unsupported wall layers (else the slice fails)"),
+        Param("seed", "int", required=False, doc="STL: decompose.seed for this job"),
+        Param("parts", "int", required=False, doc="STL: decompose.parts for this job")),
         doc="queue an STL or G-code upload (content in the request)"),
     Endpoint("job.upload", job_upload, (
         Param("data", "str", doc="a part of the file, base64"),

@@ -32,7 +32,7 @@ from hostd.jobs.progress import ProgressRecorder
 from hostd.jobs.queue import JobQueue
 from hostd.jobs.resume import resume_point, resume_scope
 from hostd.jobs.slice_loop import SliceLoop
-from hostd.jobs.spool import SUFFIX, Spool, Staged, upload_kind
+from hostd.jobs.spool import SUFFIX, Spool, SpoolError, Staged, upload_kind
 from hostd.jobs.states import TERMINAL, JobState, JobStateError
 from hostd.jobs.store import Job, JobStore
 from hostd.printer.envelope import Envelope
@@ -40,7 +40,7 @@ from hostd.printer.modal import ModalState
 from hostd.printer.program import Program
 from hostd.printer.settings import StreamSettings
 from hostd.printer.streamer import Port, Streamer
-from hostd.slicing_worker import SlicingWorker
+from hostd.slicing_worker import SliceOptions, SlicingWorker
 
 
 class JobManager:
@@ -137,7 +137,8 @@ class JobManager:
 
     # -- requests (from the control endpoints) -------------------------------------------
 
-    async def submit(self, name: str, data: bytes, kind: str | None = None) -> Job:
+    async def submit(self, name: str, data: bytes, kind: str | None = None,
+                     options: SliceOptions | None = None) -> Job:
         """Queue ``data``, an upload named ``name`` (see :meth:`submit_staged`)."""
         staged = self.spool.stage()
         try:
@@ -145,20 +146,26 @@ class JobManager:
         except BaseException:
             staged.discard()
             raise
-        return await self.submit_staged(name, staged, kind)
+        return await self.submit_staged(name, staged, kind, options)
 
     def stage(self) -> Staged:
         """A new staging file in the spool, for an upload to be written to."""
         return self.spool.stage()
 
-    async def submit_staged(self, name: str, staged: Staged, kind: str | None = None) -> Job:
+    async def submit_staged(self, name: str, staged: Staged, kind: str | None = None,
+                            options: SliceOptions | None = None) -> Job:
         """Queue an upload written to the spool's staging: checked whole in the worker
-        process, then stored under its digest. Afterwards the staged file is gone: stored, or
-        on any error discarded."""
+        process, then stored under its digest, with the slice ``options`` of an STL (refused
+        for a G-code: it is not sliced). Afterwards the staged file is gone: stored, or on any
+        error discarded."""
+        options = options or SliceOptions()
         try:
             if self.queue.stopping:
                 raise ShuttingDown("the daemon is shutting down")
             kind = upload_kind(name, kind)
+            if kind == "gcode" and options != SliceOptions():
+                raise SpoolError(f"{name}: a G-code file is not sliced here: the slice options "
+                                 "(allow_overhang, seed, parts) are for STL uploads")
             self.spool.check_size(staged.size, name)
             await asyncio.to_thread(staged.finish)  # on disk before the worker reads it
             summary = await self.checker.check(staged.path, kind, name)
@@ -167,7 +174,9 @@ class JobManager:
             staged.discard()
         estimate, total = (summary.estimate, summary.total) if summary else ({}, 0)
         job = self.store.add(Path(name).name[:200] or "upload", kind, sha,
-                             gcode_sha=sha if kind == "gcode" else None, estimate=estimate)
+                             gcode_sha=sha if kind == "gcode" else None, estimate=estimate,
+                             allow_overhang=options.allow_overhang,
+                             slice_options=dict(options.decompose))
         self.queue.added(job)
         if kind == "gcode":
             self.store.update(job.id, total_lines=total)

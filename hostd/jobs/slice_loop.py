@@ -11,7 +11,7 @@ from hostd.jobs.spool import Spool, SpoolError
 from hostd.jobs.states import JobState
 from hostd.jobs.store import Job
 from hostd.printer.errors import PrinterError
-from hostd.slicing_worker import SliceError, SlicingWorker, sliced_reason
+from hostd.slicing_worker import SliceError, SliceOptions, SlicingWorker, sliced_reason
 
 
 class SliceLoop:
@@ -51,7 +51,8 @@ class SliceLoop:
             stl = self.spool.path(job.upload_sha, ".stl")
             self.slicing = job.id
             try:
-                outcome = await self.worker.slice(stl, job.upload_sha, job.name)
+                outcome = await self.worker.slice(stl, job.upload_sha, job.name, SliceOptions(
+                    job.allow_overhang, dict(job.slice_options)))
             finally:
                 self.slicing = None
             summary = await self.checker.summarize(outcome.gcode_path, job.name)

@@ -1,8 +1,10 @@
 """The job database: SQLite in WAL mode in the state directory.
 
-The schema is versioned with ``PRAGMA user_version`` (no migrations: a database of another
-version is refused with a clear error). Writes are single small statements, each its own
-transaction, so a SIGKILL leaves the last committed progress and state on disk.
+The schema is versioned with ``PRAGMA user_version``: a database of an older version is
+brought up to date when opened (:data:`MIGRATIONS`: columns added with their defaults, so
+its jobs read as before), one of a newer version is refused with a clear error. Writes are
+single small statements, each its own transaction, so a SIGKILL leaves the last committed
+progress and state on disk.
 
 No commit copies the write-ahead log back into the database: SQLite's automatic checkpoint
 would do so inside the commit that fills a thousand pages, on the event loop, with an fsync
@@ -25,7 +27,7 @@ from typing import Any
 
 from hostd.jobs.states import ACTIVE, TERMINAL, WAITING, JobState, check_transition
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 CHECKPOINT_CHANGES = 500
 """Rows written between two checkpoints (a page of the log or so each: 2 MB of log)."""
 
@@ -51,7 +53,9 @@ CREATE TABLE IF NOT EXISTS jobs (
     modal TEXT NOT NULL DEFAULT '{}',
     estimate TEXT NOT NULL DEFAULT '{}',
     info TEXT NOT NULL DEFAULT '{}',
-    resume TEXT NOT NULL DEFAULT '{}'
+    resume TEXT NOT NULL DEFAULT '{}',
+    allow_overhang INTEGER NOT NULL DEFAULT 0,
+    slice_options TEXT NOT NULL DEFAULT '{}'
 );
 CREATE TABLE IF NOT EXISTS history (
     job_id INTEGER NOT NULL REFERENCES jobs(id) ON DELETE CASCADE,
@@ -79,7 +83,13 @@ CREATE TABLE IF NOT EXISTS settings (
 );
 """
 
-_JSON_COLUMNS = ("modal", "estimate", "info", "resume")
+MIGRATIONS: dict[int, tuple[str, ...]] = {
+    1: ("ALTER TABLE jobs ADD COLUMN allow_overhang INTEGER NOT NULL DEFAULT 0",
+        "ALTER TABLE jobs ADD COLUMN slice_options TEXT NOT NULL DEFAULT '{}'"),
+}
+"""Statements that take a database of version ``v`` to ``v + 1``."""
+
+_JSON_COLUMNS = ("modal", "estimate", "info", "resume", "slice_options")
 _WRITABLE = frozenset({"gcode_sha", "total_lines", "acked_lines", "subpart", "layer",
                        "filament_mm", "print_seconds", "modal", "estimate", "info", "resume",
                        "started_at", "reason"})
@@ -118,6 +128,11 @@ class Job:
     estimate: dict[str, Any] = field(default_factory=dict)
     info: dict[str, Any] = field(default_factory=dict)
     resume: dict[str, Any] = field(default_factory=dict)
+    allow_overhang: bool = False
+    """An STL job whose file may have unsupported wall layers (``--allow-overhang``)."""
+    slice_options: dict[str, Any] = field(default_factory=dict)
+    """The decomposition settings the job was submitted with (``seed``, ``parts``), over the
+    daemon's config."""
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-ready values. The JSON columns are shared, not copied: each ``Job`` is
@@ -180,11 +195,18 @@ class JobStore:
 
     def _init_schema(self) -> None:
         version = self._db.execute("PRAGMA user_version").fetchone()[0]
-        if version not in (0, SCHEMA_VERSION):
+        if version > SCHEMA_VERSION or version < 0:
             raise StoreError(f"{self.path}: job database schema {version} is not "
                              f"{SCHEMA_VERSION}; move it away to start afresh")
-        self._db.executescript(_DDL)
-        self._db.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
+        with self._db:  # one transaction: a database is migrated whole or not at all
+            self._db.execute("BEGIN")
+            for v in range(version or SCHEMA_VERSION, SCHEMA_VERSION):  # none when new
+                for statement in MIGRATIONS[v]:
+                    self._db.execute(statement)
+            for statement in _DDL.split(";"):  # what is missing (all of a new database)
+                if statement.strip():
+                    self._db.execute(statement)
+            self._db.execute(f"PRAGMA user_version={SCHEMA_VERSION}")
 
     def close(self) -> None:
         self._db.close()
@@ -225,15 +247,18 @@ class JobStore:
     # -- jobs ------------------------------------------------------------------------------
 
     def add(self, name: str, kind: str, upload_sha: str, gcode_sha: str | None = None,
-            estimate: dict[str, Any] | None = None) -> Job:
+            estimate: dict[str, Any] | None = None, allow_overhang: bool = False,
+            slice_options: dict[str, Any] | None = None) -> Job:
         """Insert a new ``queued`` job and return it."""
         now = self._clock()
         with self._db:
             cur = self._db.execute(
                 "INSERT INTO jobs (name, kind, upload_sha, gcode_sha, state, created_at,"
-                " updated_at, estimate) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                " updated_at, estimate, allow_overhang, slice_options)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (name, kind, upload_sha, gcode_sha, JobState.QUEUED.value, now, now,
-                 json.dumps(estimate or {})))
+                 json.dumps(estimate or {}), int(allow_overhang),
+                 json.dumps(slice_options or {})))
             job_id = int(cur.lastrowid or 0)
             self._db.execute("INSERT INTO history (job_id, at, old, new, reason)"
                              " VALUES (?, ?, NULL, ?, 'submitted')",
@@ -399,6 +424,7 @@ def _job(row: sqlite3.Row) -> Job:
     for c in _JSON_COLUMNS:
         d[c] = json.loads(d[c] or "{}")
     d["state"] = JobState(d["state"])
+    d["allow_overhang"] = bool(d["allow_overhang"])
     return Job(**d)
 
 

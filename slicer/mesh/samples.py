@@ -165,6 +165,15 @@ def pipe3(segments: int = SEGMENTS) -> trimesh.Trimesh:
     return branched_pipe(((18.0, 0.0, 45.0), (36.0, 150.0, 45.0)), segments=segments)
 
 
+def pipe_cross(segments: int = 96) -> trimesh.Trimesh:
+    """A large hollow cross fitting: an upright tube of 50 mm pipe (wall 2.5 mm) 180 mm tall
+    on a 70 mm flange, with two horizontal branches of the same pipe at mid-height reaching
+    130 mm from its axis: about 152 cm³ of material (the replay's memory bench, issue 34)."""
+    return branched_pipe(((90.0, 0.0, 0.0), (90.0, 180.0, 0.0)), radius=25.0, wall=2.5,
+                         height=180.0, branch_radius=25.0, branch_length=130.0,
+                         base_radius=35.0, base_height=3.0, segments=segments)
+
+
 def curved_pipe(bend_radius: float = 30.0, bend_deg: float = 60.0, z: float = 25.0,
                 radius: float = 10.0, wall: float = 2.0, height: float = 60.0,
                 branch_radius: float = 6.0, stub: float = 14.0, base_radius: float = 16.0,

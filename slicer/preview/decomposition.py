@@ -1,5 +1,6 @@
 """A PNG a person checks at a glance: sub-parts in colours, cut planes, build order labels,
-and the coarse region numbers that ``hostctl decompose --root`` takes."""
+and the coarse region numbers that ``hostctl decompose --root`` takes; for a refused
+decomposition, the part as placed with the point the refusal names in red."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 from slicer.decompose import Plane, plane_basis
 
 if TYPE_CHECKING:
+    import trimesh
     from matplotlib.typing import ColorType
     from mpl_toolkits.mplot3d import Axes3D
 
@@ -58,6 +60,40 @@ def render_preview(dec: Decomposition, path: str | Path, views: tuple[tuple[floa
     fig.savefig(out)
     plt.close(fig)
     return out
+
+
+def render_refused(mesh: trimesh.Trimesh, points: np.ndarray, reason: str, path: str | Path,
+                   views: tuple[tuple[float, float], ...] = ((20.0, -60.0), (20.0, 30.0))
+                   ) -> Path:
+    """Draw the part ``mesh`` as placed with ``points`` (k, 3), the failing region a refused
+    decomposition names, as large red dots; ``reason`` (one line) is the title."""
+    fig = plt.figure(figsize=(6.0 * len(views), 6.5), dpi=100)
+    lo, hi = mesh.bounds
+    centre, half = (lo + hi) / 2.0, float((hi - lo).max()) / 2.0
+    faces = mesh.triangles[:: max(1, len(mesh.faces) // MAX_FACES)]
+    p = np.asarray(points, dtype=float).reshape(-1, 3)
+    for v, (elev, azim) in enumerate(views):
+        # drawn in the order given, so the point stays in front of the faces
+        ax = fig.add_subplot(1, len(views), v + 1, projection="3d", computed_zorder=False)
+        ax.add_collection3d(Poly3DCollection(faces, facecolor="lightgrey", edgecolor="none",
+                                             alpha=0.45))
+        if len(p):
+            ax.scatter(p[:, 0], p[:, 1], p[:, 2], c="red", s=120, edgecolors="black",
+                       depthshade=False)
+        _frame(ax, centre, half, elev, azim)
+    fig.suptitle(_wrapped(f"refused: {reason}"), fontsize=9)
+    fig.tight_layout()
+    out = Path(path)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+def _wrapped(text: str, width: int = 150) -> str:
+    """``text`` broken into lines of at most about ``width`` characters."""
+    import textwrap
+
+    return "\n".join(textwrap.wrap(text, width))
 
 
 def _frame(ax: Axes3D, centre: np.ndarray, half: float, elev: float, azim: float) -> None:

@@ -1,4 +1,5 @@
-"""A PNG of a print plan's toolpaths in the platform frame, coloured by sub-part."""
+"""A PNG of a print plan's toolpaths in the platform frame, coloured by sub-part, with the
+points a refusal names (unsupported walls, a layer in the air) marked in red."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from mpl_toolkits.mplot3d.art3d import Line3DCollection
 from slicer.plan import PrintPlan
 
 MAX_SEGMENTS = 60_000  # per view, evenly thinned beyond this
+MARK_COLOUR = "red"
 
 
 def _segments(plan: PrintPlan) -> tuple[np.ndarray, np.ndarray]:
@@ -34,17 +36,27 @@ def _segments(plan: PrintPlan) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(segs), np.concatenate(owner)
 
 
-def render_toolpaths(plan: PrintPlan, path: str | Path, dpi: int = 110) -> None:
-    """Write a two-view PNG (3D and side view) of the plan's toolpaths to ``path``."""
+def render_toolpaths(plan: PrintPlan, path: str | Path, dpi: int = 110,
+                     marks: np.ndarray | None = None, note: str | None = None) -> None:
+    """Write a two-view PNG (3D and side view) of the plan's toolpaths to ``path``.
+
+    ``marks`` (k, 3) are platform-frame points drawn in red over the paths (the failing
+    region of a refusal), labelled ``note`` in the legend and the title.
+    """
     segs, owner = _segments(plan)
+    marks = np.zeros((0, 3)) if marks is None else np.asarray(marks, dtype=float).reshape(-1, 3)
     if len(segs) > MAX_SEGMENTS:
         keep = np.linspace(0, len(segs) - 1, MAX_SEGMENTS).astype(int)
         segs, owner = segs[keep], owner[keep]
     cmap = plt.get_cmap("tab10")
     colors = cmap(owner % 10) if len(owner) else np.zeros((0, 4))
     fig = plt.figure(figsize=(11, 5.5))
-    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    # drawn in the order given, so the marks stay in front of the paths
+    ax = fig.add_subplot(1, 2, 1, projection="3d", computed_zorder=False)
     ax.add_collection3d(Line3DCollection(segs, colors=colors, linewidths=0.3))
+    if len(marks):
+        ax.scatter(marks[:, 0], marks[:, 1], marks[:, 2], c=MARK_COLOUR, s=4,
+                   depthshade=False)
     if len(segs):
         lo, hi = segs.reshape(-1, 3).min(axis=0), segs.reshape(-1, 3).max(axis=0)
         span = float((hi - lo).max()) / 2 or 1.0
@@ -61,15 +73,21 @@ def render_toolpaths(plan: PrintPlan, path: str | Path, dpi: int = 110) -> None:
     # matplotlib types segments as a Sequence; its docs (and code) take an (n, 2, 2) array too
     side.add_collection(LineCollection(segs[:, :, [0, 2]],  # type: ignore[arg-type]
                                        colors=colors, linewidths=0.3))
+    if len(marks):
+        side.scatter(marks[:, 0], marks[:, 2], c=MARK_COLOUR, s=4, zorder=3)
     side.autoscale()
     side.set_aspect("equal")
     side.set_xlabel("x mm")
     side.set_ylabel("z mm")
     handles = [plt.Line2D([], [], color=cmap(sp.index % 10), label=f"sub-part {sp.index}")
                for sp in plan.subparts]
+    if len(marks):
+        handles.append(plt.Line2D([], [], color=MARK_COLOUR, marker="o", linestyle="",
+                                  label=note or "marked"))
     side.legend(handles=handles, loc="upper right", fontsize=8)
     fig.suptitle(f"{len(plan.subparts)} sub-parts, "
-                 f"{sum(len(sp.layers) for sp in plan.subparts)} layers")
+                 f"{sum(len(sp.layers) for sp in plan.subparts)} layers"
+                 + (f": {note}" if note and len(marks) else ""))
     fig.tight_layout()
     fig.savefig(path, dpi=dpi)
     plt.close(fig)

@@ -6,6 +6,9 @@
   tips), from its own ``;HOSTD_KINEMATICS`` header.
 * :mod:`~slicer.replay.support`: which beads rest on earlier material, and the layers printed
   in the air; :mod:`~slicer.replay.coverage`: how much of the part the beads fill.
+* :mod:`~slicer.replay.walls`: the unsupported wall layers (:class:`WallLayer`) and their
+  unsupported wall samples (:class:`WallSamples`), for a refusal to name and a preview to
+  mark.
 * :mod:`~slicer.replay.collide` and :mod:`~slicer.replay.tip_hits`: head collisions with
   material printed before and with the platform.
 * :mod:`~slicer.replay.geometry`: distance to the surface and inside test of the model;
@@ -28,14 +31,21 @@ from slicer.replay.check import (
 )
 from slicer.replay.coverage import shell_depth, shell_grid
 from slicer.replay.geometry import ModelIndex
+from slicer.replay.support import BAD_LAYER_SHARE, OVERHANG_DEG
+from slicer.replay.walls import WallLayer, WallSamples, wall_layer_text
 
 __all__ = [
+    "BAD_LAYER_SHARE",
+    "OVERHANG_DEG",
     "ModelIndex",
     "ReplayReport",
+    "WallLayer",
+    "WallSamples",
     "model_index",
     "overhang_text",
     "replay_check",
     "shell_depth",
     "shell_grid",
+    "wall_layer_text",
     "worst_layer_text",
 ]

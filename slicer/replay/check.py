@@ -18,6 +18,12 @@ pipes and the 50k-face pipe, five-axis and planar, and the same unsupported wall
 (``bench/replay.py --planar``, 2026-12-02), for 0.9–1.8 s less CPU on the 50k-face pipe:
 a point's verdict does not depend on which others are judged
 (``tests/slicer/test_replay.py``).
+
+The samples are never all held at once (:mod:`.stream`, :mod:`.passes`): the check walks
+them by slabs of platform z (support, coverage), by chunks of whole layers (walls, inside,
+bridging, the figures per layer) and by chunks of moves (the head), each a bounded size;
+what it keeps for the whole file is a verdict bit or two per judged sample and the first
+bead of each occupied 0.5 mm voxel (:func:`memory_estimate`).
 """
 
 from __future__ import annotations
@@ -25,7 +31,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any, TypeGuard
 
@@ -37,45 +43,41 @@ from slicer.gcode import GcodeFormatError, ParsedGcode, read_gcode
 from slicer.gcode.markers import KINEMATICS, PLACEMENT, PROCESS
 from slicer.paths import SlicingError
 from slicer.printhead import Printhead, Segment
-from slicer.replay.collide import find_collisions
-from slicer.replay.coverage import coverage
+from slicer.replay import stream
+from slicer.replay.coverage import shares
 from slicer.replay.geometry import ModelIndex
-from slicer.replay.kdtree import point_tree
+from slicer.replay.passes import (
+    LayerFigures,
+    Rules,
+    collision_pass,
+    layer_pass,
+    support_pass,
+    wall_pass,
+)
 from slicer.replay.samples import (
     Samples,
     extruding_moves,
     geometry_from_header,
-    map_and_sample,
     move_lengths,
-    positioned_moves,
     sample_count,
 )
 from slicer.replay.stages import Stages
-from slicer.replay.support import (
-    FOOTPRINT,
-    OUTLINE_DEPTH,
-    WALL_SLACK,
-    LayerSupport,
-    bad_wall_layers,
-    bead_axes,
-    bridged,
-    layer_support,
-    strict_support,
-)
+from slicer.replay.stream import Deposits, measure
+from slicer.replay.support import LayerSupport
+from slicer.replay.walls import WallLayer, WallSamples, worst_first
 from slicer.settings import MAX_BEAD_SHARE
 
 INSIDE_SLACK = 0.1  # × line width
 JUDGE_STRIDE = 2  # inside, support and walls are judged on every second deposited sample
-TIP_SPACING = 1.0  # mm between head samples along moves
-FAR_TIP_SPACING = 3.0  # mm between samples of the carriage (radius ≥ 15 mm by default)
 TIP_ANGLE = 1.0  # degrees between head samples while the table turns
 H_MIN, H_MAX = 0.25, 2.0  # bead heights read from E are clipped to these × layer height
 MEMORY_BUDGET = 1 << 30  # bytes the check may hold at its peak (memory_estimate)
-BRIDGE_CHUNK = 1 << 16  # bridging candidates whose footprints are tested at once
-BYTES_PER_SAMPLE = 160  # peak bytes per deposited sample, per head sample, per move
-BYTES_PER_TIP = 80
+WINDOW_BYTES = 352 << 20  # peak of a tile, a chunk of layers and a chunk of the head at once
+BYTES_PER_SAMPLE = 1  # kept for the whole file per deposited sample (verdicts)
+BYTES_PER_HELD = 96  # per sample of a file small enough to be held (stream.HOLD_SAMPLES)
+BYTES_PER_BEAD = 80  # per bead of the collision check's material (one per 0.5 mm voxel)
+BEADS_PER_MM3 = 16  # of deposited volume, at most (measured 9-14: the sample parts, boxes)
 BYTES_PER_MOVE = 64
-MAX_MISSES = 4096  # unsupported wall samples a report keeps
 
 
 class ReplayBudgetError(SlicingError):
@@ -107,13 +109,16 @@ class ReplayReport:
     worst_layer_run_mm: float = 0.0
     worst_layer: dict[str, Any] | None = None
     overhang_layers: list[dict[str, Any]] = field(default_factory=list)
+    # the wall layers over air (unsupported_wall_layers less the wall points that bridge
+    # sparse infill) described, worst first (at most MAX_WALL_LAYERS), and their unsupported
+    # wall samples in the platform frame (not in to_dict)
+    wall_layers: list[WallLayer] = field(default_factory=list)
+    wall_layers_over_air: int = 0
+    unsupported_walls: WallSamples = field(default_factory=WallSamples.empty, repr=False,
+                                           compare=False)
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
     cpu_timings: dict[str, float] = field(default_factory=dict)
-    # unsupported wall samples of the bad wall layers (platform frame, at most MAX_MISSES,
-    # evenly drawn), for a retry that leans the layers there; not in to_dict
-    wall_misses: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False,
-                                    compare=False)
 
     @property
     def ok(self) -> bool:
@@ -121,10 +126,10 @@ class ReplayReport:
         return self.collisions == 0 and not self.overhang_layers
 
     def to_dict(self) -> dict[str, object]:
-        """The report as a plain dict (without ``wall_misses``)."""
-        d = asdict(self)
-        d.pop("wall_misses")
-        return d
+        """The report as a plain dict, without ``unsupported_walls`` (arrays)."""
+        out = asdict(replace(self, unsupported_walls=WallSamples.empty()))
+        out.pop("unsupported_walls")
+        return out
 
     def summary(self) -> str:
         """One line of the main figures."""
@@ -227,67 +232,61 @@ def replay_check(parsed: ParsedGcode, mesh: trimesh.Trimesh, head: Printhead | N
     lengths = move_lengths(parsed)
     budget = MEMORY_BUDGET if memory_budget is None else memory_budget
     check_budget(parsed, lengths, w, budget, index.nbytes if _fits(index, w) else 0)
+    rules = Rules(w, t, proc["infill_density"], int(proc["perimeters"]), radius, JUDGE_STRIDE,
+                  INSIDE_SLACK * w)
+    to_part = np.linalg.inv(_placement(parsed)) if PLACEMENT in parsed.headers else None
     with Stages(threads) as st:  # in an order where every input is submitted first
         model_f = st.submit("index", lambda: index if _fits(index, w) else model_index(
             mesh, w, placement))
-        dep_f = st.submit("sample", lambda: _deposits(parsed, geo, lengths, bead_area, w, t))
-        # the head's samples need no deposits: taken while the deposits are sampled
-        tips_f = st.submit("head samples", lambda: _head_samples(parsed, geo, lengths,
-                                                                 bead_area))
-        tree_f = st.submit("tree", lambda: point_tree(dep_f.result()[1].p), dep_f)
-        wall_f = st.submit("wall", lambda: _wall(
-            model_f.result(), dep_f.result()[1].p[::JUDGE_STRIDE], w), model_f, dep_f)
-        ok_f = st.submit("support", lambda: strict_support(
-            dep_f.result()[1], t, w, radius, tree_f.result(),
-            judged_samples(len(dep_f.result()[1]))), tree_f)
-        hit_f = st.submit("collisions", lambda: find_collisions(
-            parsed, *tips_f.result(), dep_f.result()[1], head, radius), tips_f, dep_f)
-        cov_f = st.submit("coverage", lambda: coverage(
-            model_f.result(), dep_f.result()[1], w, t, int(proc["perimeters"]),
-            proc["infill_density"], tree_f.result()), model_f, tree_f)
-        inside_f = st.submit("inside", lambda: _inside_share(
-            model_f.result(), dep_f.result()[1].p[::JUDGE_STRIDE], wall_f.result()[0],
-            INSIDE_SLACK * w), wall_f)
-        bridge_f = st.submit("bridging", lambda: _bridging(
-            model_f.result(), dep_f.result()[1], ok_f.result(), t, w,
-            proc["infill_density"]), ok_f, model_f)
-        (n_beads, deposited), s = dep_f.result()
-        ok, wall, bridge = ok_f.result(), wall_f.result()[1], bridge_f.result()
-        (n_hit, reports), (cov, shell_cov) = hit_f.result(), cov_f.result()
-        inside_share = inside_f.result()
-    held = ok | bridge  # a wall bead bridging sparse infill is a skin, not one in the air
-    bad_seq = bad_wall_layers(s.seq[::JUDGE_STRIDE], wall, held)
-    bad_layers = [_layer_name(s, k) for k in bad_seq]
-    n = max(len(ok), 1)
-    per_layer = layer_support(s, judged_samples(len(s)), ok | bridge, w)
-    to_part = np.linalg.inv(_placement(parsed)) if PLACEMENT in parsed.headers else None
+        dep_f = st.submit("sample", lambda: _measured(parsed, geo, lengths, bead_area, w, t))
+        ok_f = st.submit("support", lambda: support_pass(dep_f.result(), model_f.result(),
+                                                         rules), dep_f, model_f)
+        # the walls and the head need no support verdicts: checked beside the support pass
+        wall_f = st.submit("walls", lambda: wall_pass(dep_f.result(), model_f.result(), rules),
+                           dep_f, model_f)
+        hit_f = st.submit("collisions", lambda: collision_pass(
+            parsed, dep_f.result(), geo, lengths, bead_area, head, radius, TIP_ANGLE), dep_f)
+        fig_f = st.submit("layers", lambda: layer_pass(
+            dep_f.result(), model_f.result(), ok_f.result()[0], wall_f.result()[0], rules,
+            to_part), ok_f, wall_f)
+        dep, (_, shell, cov), figures = dep_f.result(), ok_f.result(), fig_f.result()
+        inside = wall_f.result()[1]
+        n_hit, reports = hit_f.result()
+    coverage, shell_coverage = shares(cov, shell) if dep.n else (
+        (1.0, 1.0) if len(cov) == 0 else (0.0, 0.0))
+    return _report(parsed, dep, figures, inside, (coverage, shell_coverage), n_hit,
+                   [r.message() for r in reports], to_part, time.perf_counter() - t0, st)
+
+
+def _report(parsed: ParsedGcode, dep: Deposits, fig: LayerFigures, inside: int,
+            cov: tuple[float, float], collisions: int, messages: list[str],
+            to_part: np.ndarray | None, seconds: float, st: Stages) -> ReplayReport:
+    """The :class:`ReplayReport` of the passes' figures (``inside``: judged samples inside
+    the model)."""
+    n = max(fig.judged, 1)
+    per_layer = fig.layers
     worst = per_layer.worst()
     worst_d = None if worst is None else _layer_dict(per_layer, worst, to_part)
     return ReplayReport(
-        moves=len(parsed), extruding_moves=n_beads, deposited_mm=deposited,
-        points=len(s), inside=inside_share, coverage=cov, shell_coverage=shell_cov,
-        supported=float((ok | bridge).sum() / n), bridged=float((bridge & ~ok).sum() / n),
-        wall_points=int(wall.sum()),
-        wall_supported=float(held[wall].mean()) if wall.any() else 1.0,
-        unsupported_wall_layers=bad_layers, collisions=n_hit,
-        wall_misses=_misses(s.p[::JUDGE_STRIDE], s.seq[::JUDGE_STRIDE], wall & ~held, bad_seq),
-        collision_messages=[r.message() for r in reports],
+        moves=len(parsed), extruding_moves=len(dep.moves), deposited_mm=dep.deposited_mm,
+        points=dep.n, inside=inside / fig.judged if fig.judged else 1.0,
+        coverage=cov[0], shell_coverage=cov[1], supported=fig.supported / n,
+        bridged=fig.bridged / n, wall_points=fig.wall,
+        wall_supported=fig.wall_supported / fig.wall if fig.wall else 1.0,
+        unsupported_wall_layers=[_name(v) for v in fig.strict], collisions=collisions,
+        collision_messages=messages,
         worst_layer_unsupported=0.0 if worst_d is None else worst_d["share"],
         worst_layer_run_mm=0.0 if worst_d is None else worst_d["run_mm"],
         worst_layer=worst_d,
         overhang_layers=[_layer_dict(per_layer, int(i), to_part)
                          for i in per_layer.overhangs()],
-        seconds=time.perf_counter() - t0, timings=st.wall, cpu_timings=st.cpu)
+        wall_layers=worst_first(fig.over_air), wall_layers_over_air=len(fig.over_air),
+        unsupported_walls=fig.samples, seconds=seconds, timings=st.wall, cpu_timings=st.cpu)
 
 
-def _misses(points: np.ndarray, seq: np.ndarray, missed: np.ndarray, bad: list[int]
-            ) -> np.ndarray:
-    """The judged ``points`` (m, 3) that are ``missed`` (unsupported walls) in the layers
-    ``bad``, at most ``MAX_MISSES`` of them evenly drawn, (k, 3)."""
-    idx = np.flatnonzero(missed & np.isin(seq, bad))
-    if len(idx) > MAX_MISSES:
-        idx = idx[np.linspace(0, len(idx) - 1, MAX_MISSES).astype(np.int64)]
-    return points[idx].copy()
+def _name(layer: WallLayer) -> str:
+    """``sub-part 1 layer 7``."""
+    return f"sub-part {layer.subpart} layer {layer.layer}"
 
 
 def _fits(index: ModelIndex | None, line_width: float) -> TypeGuard[ModelIndex]:
@@ -301,45 +300,69 @@ def _inside_pitch(line_width: float) -> float:
     return INSIDE_SLACK * line_width * math.sqrt(2.0) * (1.0 - 1e-9)
 
 
+def _measured(parsed: ParsedGcode, geo: MachineGeometry,
+              lengths: tuple[np.ndarray, np.ndarray], bead_area: float, line_width: float,
+              layer_height: float) -> Deposits:
+    """The file's deposits, sampled every half line width (:func:`~.stream.measure`)."""
+    return measure(parsed, geo, lengths, bead_area, 0.5 * line_width, TIP_ANGLE,
+                   (H_MIN * layer_height, H_MAX * layer_height))
+
+
 def _deposits(parsed: ParsedGcode, geo: MachineGeometry,
               lengths: tuple[np.ndarray, np.ndarray], bead_area: float, line_width: float,
               layer_height: float) -> tuple[tuple[int, float], Samples]:
-    """(number of extruding moves, their length in mm) and their samples every half line
-    width (the mapped moves are dropped: they would live as long as the samples)."""
-    moves = extruding_moves(parsed, lengths)
-    return ((len(moves), float(lengths[0][moves].sum())),
-            map_and_sample(parsed, geo, moves, lengths, bead_area, 0.5 * line_width,
-                           TIP_ANGLE, (H_MIN * layer_height, H_MAX * layer_height)))
+    """(number of extruding moves, their length in mm) and all their samples at once (for
+    tests and small files: the check itself never holds them all)."""
+    dep = _measured(parsed, geo, lengths, bead_area, line_width, layer_height)
+    return (len(dep.moves), dep.deposited_mm), dep.samples(0, dep.n)
 
 
 def memory_estimate(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray],
                     line_width: float) -> tuple[int, int]:
     """(deposited samples, bytes) the replay of ``parsed`` needs at its peak, from the
-    moves alone (nothing is sampled): ``BYTES_PER_SAMPLE`` per deposited sample,
-    ``BYTES_PER_TIP`` per head sample, ``BYTES_PER_MOVE`` per move.
+    moves alone (nothing is sampled): :func:`memory_parts` together."""
+    n, scaling, fixed = memory_parts(parsed, lengths, line_width)
+    return n, scaling + fixed
 
-    The figures bound the traced peak of the check's arrays (the samples, their KD-tree,
-    the stages' chunked temporaries; two stages at once) on ``bench/slice_memory.py``'s
-    parts, rounded up; the model index is counted apart (:func:`check_budget`), the parsed
-    file not at all (the caller holds it anyway).
+
+def memory_parts(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray],
+                 line_width: float) -> tuple[int, int, int]:
+    """(deposited samples, bytes that scale with the number of layers, bytes that do not)
+    of the replay's peak, from the moves alone.
+
+    The first bytes: ``BYTES_PER_SAMPLE`` per deposited sample and ``BYTES_PER_MOVE`` per
+    move, the verdicts and the numbers per move kept for the whole file (and
+    ``BYTES_PER_HELD`` per sample of a file held whole, :data:`~.stream.HOLD_SAMPLES`). The
+    others:
+    ``WINDOW_BYTES`` (a tile, a chunk of layers and a chunk of the head's samples, the
+    passes' windows, two at once) and ``BYTES_PER_BEAD`` per bead of the collision check's
+    material, at most ``BEADS_PER_MM3`` per mm³ deposited (or one per sample). They bound
+    the traced peak of the check on ``bench/slice_memory.py``'s parts, rounded up; the model
+    index is counted apart (:func:`check_budget`), the parsed file not at all (the caller
+    holds it anyway).
     """
-    dep, pos = extruding_moves(parsed, lengths), positioned_moves(parsed, lengths)
-    n = sample_count(lengths[0][dep], lengths[1][dep], 0.5 * line_width, TIP_ANGLE)
-    tips = (sample_count(lengths[0][pos], lengths[1][pos], TIP_SPACING, TIP_ANGLE)
-            + sample_count(lengths[0][pos], lengths[1][pos], FAR_TIP_SPACING, TIP_ANGLE))
-    return n, n * BYTES_PER_SAMPLE + tips * BYTES_PER_TIP + len(parsed) * BYTES_PER_MOVE
+    moves = extruding_moves(parsed, lengths)
+    n = sample_count(lengths[0][moves], lengths[1][moves], 0.5 * line_width, TIP_ANGLE)
+    proc = parsed.headers.get(PROCESS, {})
+    filament = _number(proc, "filament_diameter") or 1.75
+    volume = float(np.maximum(parsed.e[moves], 0.0).sum()) * math.pi * filament ** 2 / 4.0
+    beads = min(n, math.ceil(BEADS_PER_MM3 * volume))
+    held = n * BYTES_PER_HELD if n <= stream.HOLD_SAMPLES else 0
+    return (n, n * BYTES_PER_SAMPLE + held + len(parsed) * BYTES_PER_MOVE,
+            WINDOW_BYTES + beads * BYTES_PER_BEAD)
 
 
 def check_budget(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray],
                  line_width: float, budget: float, index_bytes: int = 0) -> None:
     """Raise :class:`ReplayBudgetError` when :func:`memory_estimate` plus ``index_bytes``
-    (a prebuilt model index) exceeds ``budget`` bytes (the check holds every deposited
-    sample at once). The message says what would fit (:func:`budget_advice`)."""
-    n, need = memory_estimate(parsed, lengths, line_width)
+    (a prebuilt model index) exceeds ``budget`` bytes. The message says what would fit
+    (:func:`budget_advice`: of the bytes, those that scale with the number of layers)."""
+    n, scaling, fixed = memory_parts(parsed, lengths, line_width)
+    need = scaling + fixed
     if need + index_bytes > budget:
         proc = parsed.headers.get(PROCESS, {})
-        advice = budget_advice(need, budget - index_bytes, _number(proc, "layer_height"),
-                               _number(proc, "nozzle_diameter"))
+        advice = budget_advice(scaling, budget - index_bytes - fixed,
+                               _number(proc, "layer_height"), _number(proc, "nozzle_diameter"))
         raise ReplayBudgetError(
             f"too large to replay-check: {n / 1e6:.1f} M bead samples would need about "
             f"{(need + index_bytes) / 2**30:.1f} GiB, above the check's budget of "
@@ -348,11 +371,11 @@ def check_budget(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray],
 
 def budget_advice(need: float, room: float, layer_height: float | None,
                   nozzle_diameter: float | None) -> str:
-    """What fits the replay's memory budget when the samples need ``need`` bytes and have
-    ``room``: the samples, the head's and the moves scale with the number of layers, so a
-    layer height of ``layer_height · need / room`` would, if the nozzle allows it (at most
-    :data:`~slicer.settings.MAX_BEAD_SHARE` × ``nozzle_diameter``); else only a smaller part.
-    Unknown heights (a file without them) give the general advice."""
+    """What fits the replay's memory budget when the bytes that scale with the number of
+    layers (the samples' verdicts, the moves) are ``need`` and have ``room`` beside the
+    rest: a layer height of ``layer_height · need / room`` would, if the nozzle allows it
+    (at most :data:`~slicer.settings.MAX_BEAD_SHARE` × ``nozzle_diameter``); else only a
+    smaller part. Unknown heights (a file without them) give the general advice."""
     if layer_height is None or nozzle_diameter is None:
         return "a smaller part, or a larger layer height, fits"
     largest = MAX_BEAD_SHARE * nozzle_diameter
@@ -378,80 +401,10 @@ def _number(values: dict[str, Any], key: str) -> float | None:
     return v if math.isfinite(v) and v > 0 else None
 
 
-def _wall(model: ModelIndex, points: np.ndarray, line_width: float
-          ) -> tuple[np.ndarray, np.ndarray]:
-    """(:meth:`~ModelIndex.nearest_bound`, wall mask) of points (n, 3): walls lie within
-    ``WALL_SLACK`` line widths of the surface."""
-    bound = model.nearest_bound(points, WALL_SLACK * line_width)
-    return bound, model.within(points, WALL_SLACK * line_width, bound)
-
-
-def _head_samples(parsed: ParsedGcode, geo: MachineGeometry,
-                  lengths: tuple[np.ndarray, np.ndarray], bead_area: float
-                  ) -> tuple[Samples, Samples]:
-    """The head sampled along every move for :func:`~slicer.replay.collide.find_collisions`:
-    (near samples for the nozzle, far ones for the carriage)."""
-    moves = positioned_moves(parsed, lengths)
-    near, far = (map_and_sample(parsed, geo, moves, lengths, bead_area, spacing, TIP_ANGLE,
-                                ends=True, beads=False)
-                 for spacing in (TIP_SPACING, FAR_TIP_SPACING))
-    return near, far
-
-
 def judged_samples(n: int) -> np.ndarray:
     """Indices of the samples judged (inside, support, walls) of ``n`` deposited ones: those
     of the slice ``[::JUDGE_STRIDE]``, which the stages take of the sample arrays."""
     return np.arange(0, n, JUDGE_STRIDE)
-
-
-def _bridging(model: ModelIndex, s: Samples, ok: np.ndarray, layer_height: float,
-              line_width: float, infill_density: float) -> np.ndarray:
-    """Which judged samples (``ok`` is theirs) are unsupported over the previous layer's
-    outline and bridge sparse infill (:func:`~slicer.replay.support.bridged`), (m,) bool.
-
-    Over the outline: the bead's footprint at the previous layer's mid-height beneath the
-    sample (``OUTLINE_DEPTH`` bead heights down its axis), its centre and the points
-    ``FOOTPRINT`` widths from it along and across the bead, lies inside the model, exactly
-    (no slack: under a ledge printed in thin layers that point lies a fraction of a layer
-    below the ledge's underside). The points are offset across the axis only, so the
-    part's top, however near, takes no part.
-    """
-    judged = judged_samples(len(s))
-    cand = ~ok
-    idx = judged[cand]
-    over = np.zeros(len(idx), dtype=bool)
-    r = FOOTPRINT * line_width
-    for lo in range(0, len(idx), BRIDGE_CHUNK):  # (5 · chunk, 3) footprints at a time
-        j = idx[lo:lo + BRIDGE_CHUNK]
-        below = s.p[j] - OUTLINE_DEPTH * s.h[j, None] * s.u[j]
-        along, across = bead_axes(s.u[j], s.step[j])
-        points = np.concatenate([below, below + r * along, below - r * along,
-                                 below + r * across, below - r * across])
-        over[lo:lo + len(j)] = model.inside(points).reshape(5, len(j)).all(axis=0)
-    cand[cand] = over
-    mask = np.zeros(len(s), dtype=bool)
-    mask[judged[cand]] = True
-    return bridged(s, mask, layer_height, line_width, infill_density)[judged]
-
-
-def _inside_share(model: ModelIndex, points: np.ndarray, bound: np.ndarray, slack: float
-                  ) -> float:
-    """Share of points (n, 3) inside the model or within ``slack`` of its surface.
-
-    ``bound`` is the points' :meth:`~ModelIndex.nearest_bound`. The column test is exact
-    for points farther than ``model.inside_pitch / √2`` from the surface; with that below
-    ``slack`` every closer point counts through the slack, so no ray is cast, and only the
-    points the column test puts outside need their distance to the surface.
-    """
-    if len(points) == 0:
-        return 1.0
-    if model.inside_pitch / math.sqrt(2.0) > slack:
-        near = np.isfinite(model.distance(points, slack, bound))
-        return float(np.mean(model.inside(points) | near))
-    ok = model.parity_inside(points)
-    out = np.flatnonzero(~ok)
-    ok[out] = np.isfinite(model.distance(points[out], slack, bound[out]))
-    return float(np.mean(ok))
 
 
 def _layer_dict(layers: LayerSupport, row: int, to_part: np.ndarray | None
@@ -490,11 +443,6 @@ def overhang_text(layer: dict[str, Any]) -> str:
             f"prints {100 * layer['share']:.1f}% of its {layer['extruded_mm']:.0f} mm of "
             f"extrusion over nothing ({layer['unsupported_mm']:.0f} mm unsupported, a run "
             f"of {layer['run_mm']:.0f} mm{at})")
-
-
-def _layer_name(s: Samples, seq: int) -> str:
-    i = int(np.flatnonzero(s.seq == seq)[0])
-    return f"sub-part {int(s.subpart[i])} layer {int(s.layer[i])}"
 
 
 def replay_file(path: str | Path, mesh: trimesh.Trimesh, head: Printhead | None = None,

@@ -12,15 +12,21 @@ the highest tip plus the head height can matter, which is usually none. Tips of 
 turn the table each have an axis of their own: those are checked one by one against the beads
 in a ball around the head (:mod:`.tip_hits`). A colliding tip reports the earliest bead
 it hits.
+
+Neither the beads nor the tips are held all at once: the beads are read a chunk at a time
+and only each voxel's first kept (:func:`printed_material`), and the tips come in chunks of
+moves in file order (:func:`find_collisions`); a tip's verdict depends on no other tip, so
+the answers are those of all tips at once.
 """
 
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from slicer.gcode import ParsedGcode
 from slicer.printhead import Printhead
@@ -33,7 +39,7 @@ MAX_REPORTS = 20
 NEAR_PITCH = 0.5  # mm: bead resolution for the nozzle cone
 FAR_PITCH = 4 * NEAR_PITCH  # mm: bead resolution for the carriage (nests in NEAR_PITCH)
 SMALL_GROUP = 16  # tips of one axis checked by ball queries rather than as a group
-CHUNK = 1 << 20  # beads mapped to voxels at once
+CHUNK = 1 << 18  # beads mapped to voxels at once
 
 
 @dataclass(frozen=True)
@@ -97,16 +103,25 @@ def first_in_voxels(n: int, points: Callable[[int, int], np.ndarray], pitch: flo
                     bounds: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
     """:func:`voxel_representatives` of ``n`` points handed over ``CHUNK`` at a time.
 
-    ``points(lo, hi)`` gives points ``lo:hi`` (hi − lo, 3) and ``bounds`` their (3,) minimum
-    and maximum (floor is monotonic, so the voxels' bounds follow). A voxel's first point is
-    the first of the first chunk that holds it, so the answer is the whole array's.
+    ``points(lo, hi)`` gives points ``lo:hi`` (hi − lo, 3) and ``bounds`` (3,) bounds of
+    them all (a minimum and maximum, or wider: floor is monotonic, so the voxels' bounds
+    follow). A voxel's first point is the first of the first chunk that holds it, so the
+    answer is the whole array's.
     """
+    firsts = [lo + first for lo, first in _firsts_by_chunk(n, points, pitch, bounds)]
+    return np.concatenate(firsts) if firsts else np.zeros(0, dtype=int)
+
+
+def _firsts_by_chunk(n: int, points: Callable[[int, int], np.ndarray], pitch: float,
+                     bounds: tuple[np.ndarray, np.ndarray] | None
+                     ) -> Iterator[tuple[int, np.ndarray]]:
+    """Per chunk ``lo:lo + CHUNK`` of :func:`first_in_voxels`: ``lo`` and the indices within
+    it (ascending) of the points first in their voxel."""
     if n == 0 or bounds is None:
-        return np.zeros(0, dtype=int)
+        return
     low = np.floor(bounds[0] / pitch).astype(np.int64)
     dims = np.floor(bounds[1] / pitch).astype(np.int64) - low + 1
     seen = np.zeros(0, dtype=np.int64)
-    out = []
     for lo in range(0, n, CHUNK):
         cell = np.floor(points(lo, min(lo + CHUNK, n)) / pitch).astype(np.int64)
         cell -= low
@@ -120,8 +135,67 @@ def first_in_voxels(n: int, points: Callable[[int, int], np.ndarray], pitch: flo
             seen = np.sort(np.concatenate([seen, key]))
         else:
             seen = key
-        out.append(np.sort(first) + lo)
-    return np.concatenate(out)
+        yield lo, np.sort(first)
+
+
+@dataclass
+class Material:
+    """Printed material as the collision check sees it: the first bead (in print order) of
+    every occupied voxel of ``NEAR_PITCH``.
+
+    Attributes
+    ----------
+    index : (k,) int
+        File-order index of each bead among the deposits, ascending.
+    beads : (k, 3) float
+        Their centres (tip − h/2 along the axis).
+    move, subpart, layer : (k,) int32
+        The move that laid each, its sub-part and layer.
+    far : (j,) int
+        Rows of the first bead of every voxel of ``FAR_PITCH``.
+    """
+
+    index: np.ndarray
+    beads: np.ndarray
+    move: np.ndarray
+    subpart: np.ndarray
+    layer: np.ndarray
+    far: np.ndarray
+    _trees: dict[bool, cKDTree] = field(default_factory=dict, repr=False)
+
+    def tree(self, far: bool) -> cKDTree:
+        """KD-tree of the near beads, or of the ``far`` ones (built on first use)."""
+        if far not in self._trees:
+            self._trees[far] = point_tree(self.beads[self.far] if far else self.beads)
+        return self._trees[far]
+
+    def at(self, deposit: int) -> int:
+        """Row of the bead that is deposit ``deposit``."""
+        return int(np.searchsorted(self.index, deposit))
+
+
+def printed_material(n: int, chunk: Callable[[int, int], Samples],
+                     bounds: tuple[np.ndarray, np.ndarray] | None) -> Material:
+    """The :class:`Material` of ``n`` deposits read by ``chunk(lo, hi)`` (deposits ``lo:hi``
+    as :class:`Samples`), ``CHUNK`` at a time; ``bounds`` bound their bead centres."""
+    held: list[Samples] = []
+
+    def centres(lo: int, hi: int) -> np.ndarray:
+        held[:] = [chunk(lo, hi)]
+        return bead_centres(held[0])
+
+    parts = []
+    for lo, first in _firsts_by_chunk(n, centres, NEAR_PITCH, bounds):
+        s = held[0]
+        parts.append((lo + first, _centres_at(s, first), s.move[first], s.subpart[first],
+                      s.layer[first]))
+    if not parts:
+        e = np.zeros(0, dtype=np.int32)
+        return Material(np.zeros(0, dtype=int), np.zeros((0, 3)), e, e, e,
+                        np.zeros(0, dtype=int))
+    index, beads, move, subpart, layer = (np.concatenate(p) for p in zip(*parts, strict=True))
+    return Material(index, beads, move, subpart, layer,
+                    voxel_representatives(beads, FAR_PITCH))
 
 
 def bead_centres(deposits: Samples, lo: int = 0, hi: int | None = None) -> np.ndarray:
@@ -133,18 +207,6 @@ def bead_centres(deposits: Samples, lo: int = 0, hi: int | None = None) -> np.nd
 def _centres_at(deposits: Samples, idx: np.ndarray) -> np.ndarray:
     """:func:`bead_centres` of the deposits ``idx`` (k,), (k, 3)."""
     return deposits.p[idx] - deposits.u[idx] * (deposits.h[idx, None] / 2.0)
-
-
-def _bead_bounds(deposits: Samples) -> tuple[np.ndarray, np.ndarray] | None:
-    """(3,) minimum and maximum of the bead centres, by chunks."""
-    if len(deposits) == 0:
-        return None
-    lows, highs = [], []
-    for lo in range(0, len(deposits), CHUNK):
-        b = bead_centres(deposits, lo, lo + CHUNK)
-        lows.append(b.min(axis=0))
-        highs.append(b.max(axis=0))
-    return np.min(lows, axis=0), np.max(highs, axis=0)
 
 
 def _group_hits(tips: Samples, sel: np.ndarray, beads: np.ndarray, bead_move: np.ndarray,
@@ -213,12 +275,13 @@ def axis_groups(u: np.ndarray) -> np.ndarray:
 
 
 def _material_hits(tips: Samples, rep_beads: np.ndarray, rep_move: np.ndarray,
-                   reps: np.ndarray, part: HeadPart) -> list[tuple[int, int]]:
+                   reps: np.ndarray, part: HeadPart, tree: Callable[[], cKDTree]
+                   ) -> list[tuple[int, int]]:
     """(tip, bead) of the earliest bead inside ``part`` at each colliding tip.
 
     Only the beads' voxel representatives are tested: ``reps`` (k,) their indices among the
-    deposits (in print order), ``rep_beads`` (k, 3) their centres and ``rep_move`` (k,) the
-    moves that laid them.
+    deposits (in print order), ``rep_beads`` (k, 3) their centres, ``rep_move`` (k,) the
+    moves that laid them and ``tree()`` their KD-tree.
 
     Tips sharing their axis with more than ``SMALL_GROUP`` others are checked by axis group
     (:func:`_group_hits`, whose set-up costs a pass over the beads), the others by a ball
@@ -238,19 +301,21 @@ def _material_hits(tips: Samples, rep_beads: np.ndarray, rep_move: np.ndarray,
         ti, oi = _group_hits(tips, order[lo:hi], rep_beads, rep_move, part)
         hits.extend(zip(ti.tolist(), reps[oi].tolist(), strict=True))
     if scattered and len(reps):
-        ti, oi = ball_hits(tips, np.concatenate(scattered), rep_beads, rep_move,
-                           point_tree(rep_beads), part)
+        ti, oi = ball_hits(tips, np.concatenate(scattered), rep_beads, rep_move, tree(),
+                           part)
         hits.extend(zip(ti.tolist(), reps[oi].tolist(), strict=True))
     return hits
 
 
-def find_collisions(parsed: ParsedGcode, near: Samples, far_tips: Samples, deposits: Samples,
-                    head: Printhead, platform_radius: float) -> tuple[int, list[Collision]]:
+def find_collisions(parsed: ParsedGcode, tips: Iterable[tuple[Samples, Samples]],
+                    material: Material, head: Printhead, platform_radius: float
+                    ) -> tuple[int, list[Collision]]:
     """Count colliding tip samples and describe the first of each (sub-part, layer, obstacle).
 
-    The nozzle (the head's first segment) is checked at tips ``near`` against beads kept at
-    ``NEAR_PITCH``; the rest of the head at the sparser tips ``far_tips`` against ``FAR_PITCH``
-    (one earliest bead per voxel: the check resolves material to that pitch).
+    ``tips`` are the head's samples in chunks of moves, in file order: (near, far) of each.
+    The nozzle (the head's first segment) is checked at the near tips against ``material``'s
+    beads (one earliest bead per ``NEAR_PITCH`` voxel); the rest of the head at the sparser
+    far tips against its ``FAR_PITCH`` beads: the check resolves material to that pitch.
 
     Returns
     -------
@@ -259,32 +324,52 @@ def find_collisions(parsed: ParsedGcode, near: Samples, far_tips: Samples, depos
     reports : list of Collision
         At most ``MAX_REPORTS``, in file order.
     """
+    log = _Reports(parsed, material)
+    for near, far_tips in tips:
+        log.add(_chunk_hits(near, far_tips, material, head, platform_radius))
+    return log.count, log.reports
+
+
+def _chunk_hits(near: Samples, far_tips: Samples, material: Material, head: Printhead,
+                platform_radius: float) -> list[tuple[Samples, int, int]]:
+    """(tips, tip, deposit hit or -1 for the platform) of each colliding tip of a chunk."""
     segs = head.segments
-    # the beads are found by chunks and only the voxels' first ones kept: (n, 3) arrays of
-    # every bead would cost as much as the samples again
-    reps = first_in_voxels(len(deposits), lambda lo, hi: bead_centres(deposits, lo, hi),
-                           NEAR_PITCH, _bead_bounds(deposits))
-    beads = _centres_at(deposits, reps)
-    found = [(near, t, o) for t, o in _material_hits(near, beads, deposits.move[reps], reps,
-                                                      HeadPart(segs[:1]))]
+    m = material
+    found = [(near, t, o) for t, o in _material_hits(
+        near, m.beads, m.move, m.index, HeadPart(segs[:1]), lambda: m.tree(False))]
     if len(segs) > 1:
-        far = voxel_representatives(beads, FAR_PITCH)
         found += [(far_tips, t, o) for t, o in _material_hits(
-            far_tips, beads[far], deposits.move[reps[far]], reps[far], HeadPart(segs[1:]))]
+            far_tips, m.beads[m.far], m.move[m.far], m.index[m.far], HeadPart(segs[1:]),
+            lambda: m.tree(True))]
     found += [(near, int(t), -1) for t in np.flatnonzero(platform_hits(near, head,
                                                                         platform_radius))]
-    found.sort(key=lambda x: (int(x[0].move[x[1]]), x[2]))
-    reports: list[Collision] = []
-    seen: set[tuple[int, int, bool]] = set()
-    for tips, t, o in found:
-        m = int(tips.move[t])
-        key = (int(tips.subpart[t]), int(tips.layer[t]), o < 0)
-        if key in seen or len(reports) >= MAX_REPORTS:
-            continue
-        seen.add(key)
-        reports.append(Collision(int(parsed.line[m]), key[0], key[1],
-                                 "platform" if o < 0 else "printed part",
-                                 int(deposits.subpart[o]) if o >= 0 else -1,
-                                 int(deposits.layer[o]) if o >= 0 else -1,
-                                 bool(parsed.transition[m])))
-    return len({(id(tips), t) for tips, t, _ in found}), reports
+    return found
+
+
+@dataclass
+class _Reports:
+    """Colliding tips counted, and the first of each (sub-part, layer, obstacle) described,
+    chunk after chunk in file order."""
+
+    parsed: ParsedGcode
+    material: Material
+    count: int = 0
+    reports: list[Collision] = field(default_factory=list)
+    seen: set[tuple[int, int, bool]] = field(default_factory=set)
+
+    def add(self, found: list[tuple[Samples, int, int]]) -> None:
+        found.sort(key=lambda x: (int(x[0].move[x[1]]), x[2]))
+        self.count += len({(id(tips), t) for tips, t, _ in found})
+        m = self.material
+        for tips, t, o in found:
+            move = int(tips.move[t])
+            key = (int(tips.subpart[t]), int(tips.layer[t]), o < 0)
+            if key in self.seen or len(self.reports) >= MAX_REPORTS:
+                continue
+            self.seen.add(key)
+            row = m.at(o) if o >= 0 else -1
+            self.reports.append(Collision(
+                int(self.parsed.line[move]), key[0], key[1],
+                "platform" if o < 0 else "printed part",
+                int(m.subpart[row]) if o >= 0 else -1, int(m.layer[row]) if o >= 0 else -1,
+                bool(self.parsed.transition[move])))

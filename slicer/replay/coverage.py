@@ -51,9 +51,9 @@ def shell_depth(perimeters: int, line_width: float) -> float:
     return max(perimeters, 1) * line_width
 
 
-def _shell_covered(g: np.ndarray, s: Samples, tree: cKDTree, w: float, t: float
-                   ) -> np.ndarray:
-    r = float(np.hypot(REACH * w, s.h.max() + 0.25 * t))
+def _shell_covered(g: np.ndarray, s: Samples, tree: cKDTree, w: float, t: float,
+                   h_max: float) -> np.ndarray:
+    r = shell_reach(w, t, h_max)
     k = min(NEIGHBOURS, len(s))
     dist, idx = tree.query(g, k=k, distance_upper_bound=r, workers=-1)
     dist, idx = dist.reshape(len(g), k), idx.reshape(len(g), k)
@@ -79,10 +79,53 @@ def _core_covered(g: np.ndarray, s: Samples, tree: cKDTree, lateral: float, t: f
     return (valid & (np.abs(ax) <= 1.5 * t)).any(axis=1)
 
 
+def shell_reach(line_width: float, layer_height: float, h_max: float) -> float:
+    """How far from a shell grid point a covering sample may lie, mm (``h_max``: the
+    largest bead height)."""
+    return float(np.hypot(REACH * line_width, h_max + 0.25 * layer_height))
+
+
+def core_lateral(line_width: float, infill_density: float) -> float:
+    """Lateral reach of a sample covering a core grid point, mm."""
+    spacing = line_width / infill_density if infill_density > 0 else 0.0
+    return 0.5 * spacing + REACH * line_width
+
+
+def coverage_reach(line_width: float, layer_height: float, infill_density: float,
+                   h_max: float) -> float:
+    """How far from a grid point any covering sample may lie, mm."""
+    return max(shell_reach(line_width, layer_height, h_max),
+               float(np.hypot(core_lateral(line_width, infill_density), 1.5 * layer_height)))
+
+
+def covered(g: np.ndarray, shell: np.ndarray, s: Samples, tree: cKDTree, line_width: float,
+            layer_height: float, infill_density: float, h_max: float) -> np.ndarray:
+    """Which grid points ``g`` (k, 3) (``shell`` (k,) bool: those in the shell) a sample of
+    ``s`` (KD-tree ``tree``) covers, (k,) bool. ``h_max`` is the largest bead height of all
+    the deposits, so that ``s`` may be those near ``g`` only: every sample within
+    :func:`coverage_reach` of a point of ``g``."""
+    out = np.zeros(len(g), dtype=bool)
+    if len(s) == 0 or len(g) == 0:
+        return out
+    out[shell] = _shell_covered(g[shell], s, tree, line_width, layer_height, h_max)
+    core = ~shell
+    if core.any():
+        out[core] = _core_covered(g[core], s, tree, core_lateral(line_width, infill_density),
+                                  layer_height)
+    return out
+
+
+def shares(covered: np.ndarray, shell: np.ndarray) -> tuple[float, float]:
+    """(total, shell) shares of the grid ``covered`` (1.0 for an empty grid or shell)."""
+    if len(covered) == 0:
+        return 1.0, 1.0
+    return float(covered.mean()), float(covered[shell].mean()) if shell.any() else 1.0
+
+
 def coverage(model: ModelIndex, s: Samples, line_width: float, layer_height: float,
              perimeters: int, infill_density: float, tree: cKDTree | None = None
              ) -> tuple[float, float]:
-    """Share of the model volume covered, overall and in the shell.
+    """Share of the model volume covered, overall and in the shell, by all the deposits.
 
     Parameters
     ----------
@@ -104,12 +147,6 @@ def coverage(model: ModelIndex, s: Samples, line_width: float, layer_height: flo
     if len(s) == 0:
         return 0.0, 0.0
     tree = point_tree(s.p) if tree is None else tree
-    covered = np.zeros(len(g), dtype=bool)
-    covered[shell] = _shell_covered(g[shell], s, tree, line_width, layer_height)
-    core = ~shell
-    if core.any():
-        spacing = line_width / infill_density if infill_density > 0 else 0.0
-        covered[core] = _core_covered(g[core], s, tree, 0.5 * spacing + REACH * line_width,
-                                      layer_height)
-    shell_share = float(covered[shell].mean()) if shell.any() else 1.0
-    return float(covered.mean()), shell_share
+    h_max = float(s.h.max())
+    return shares(covered(g, shell, s, tree, line_width, layer_height, infill_density, h_max),
+                  shell)

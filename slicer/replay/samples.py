@@ -54,8 +54,8 @@ class Samples:
     def __len__(self) -> int:
         return len(self.p)
 
-    def take(self, mask: np.ndarray) -> Samples:
-        """The samples where ``mask`` holds."""
+    def take(self, mask: np.ndarray | slice) -> Samples:
+        """The samples where ``mask`` holds (or those of a slice: views)."""
         return Samples(self.p[mask], self.u[mask], self.h[mask], self.step[mask],
                        self.move[mask],
                        self.seq[mask], self.subpart[mask], self.layer[mask])
@@ -193,10 +193,10 @@ def sample_moves(parsed: ParsedGcode, geometry: MachineGeometry, mapped: MappedM
     Without ``beads`` (head samples) ``h`` and ``step`` are read-only zeros of no memory.
     The move and layer numbers are int32.
     """
-    count = _counts(mapped.length, mapped.turn, spacing, angle_step)
+    count = sample_counts(mapped.length, mapped.turn, spacing, angle_step)
     out = _empty_samples(int(count.sum()), beads)
     ends_at = np.cumsum(count)
-    for lo, hi in _move_chunks(ends_at):  # the temporaries of a chunk stay bounded
+    for lo, hi in move_chunks(ends_at):  # the temporaries of a chunk stay bounded
         rows = slice(int(ends_at[lo] - count[lo]), int(ends_at[hi - 1]))
         _sample_chunk(parsed, geometry, mapped, slice(lo, hi), count[lo:hi], ends, out, rows)
     return out
@@ -210,10 +210,10 @@ def map_and_sample(parsed: ParsedGcode, geometry: MachineGeometry, moves: np.nda
     bead_area, h_range), spacing, angle_step, ends, beads)``, the same samples, mapping
     the moves (m,) a chunk at a time: the mapped moves' arrays (about 250 bytes a move
     with their temporaries) never exist for all moves at once."""
-    count = _counts(lengths[0][moves], lengths[1][moves], spacing, angle_step)
+    count = sample_counts(lengths[0][moves], lengths[1][moves], spacing, angle_step)
     out = _empty_samples(int(count.sum()), beads)
     ends_at = np.cumsum(count)
-    for lo, hi in _move_chunks(ends_at):
+    for lo, hi in move_chunks(ends_at):
         rows = slice(int(ends_at[lo] - count[lo]), int(ends_at[hi - 1]))
         mapped = map_moves(parsed, geometry, moves[lo:hi], lengths, bead_area, h_range)
         _sample_chunk(parsed, geometry, mapped, slice(0, hi - lo), count[lo:hi], ends, out,
@@ -221,8 +221,8 @@ def map_and_sample(parsed: ParsedGcode, geometry: MachineGeometry, moves: np.nda
     return out
 
 
-def _counts(length: np.ndarray, turn: np.ndarray, spacing: float, angle_step: float
-            ) -> np.ndarray:
+def sample_counts(length: np.ndarray, turn: np.ndarray, spacing: float, angle_step: float
+                  ) -> np.ndarray:
     """Samples per move of XYZ ``length`` and A/C ``turn`` (m,), int64 (m,)."""
     count = np.maximum(1, np.ceil(np.maximum(length / spacing, turn / angle_step)))
     return count.astype(np.int64)
@@ -237,13 +237,14 @@ def _empty_samples(n: int, beads: bool) -> Samples:
                    np.empty(n, np.int32))
 
 
-def _move_chunks(ends_at: np.ndarray) -> list[tuple[int, int]]:
-    """Consecutive move ranges [lo, hi) of about ``CHUNK_SAMPLES`` samples each (at least one
-    move); ``ends_at`` (m,) is the cumulative sample count."""
+def move_chunks(ends_at: np.ndarray, size: int | None = None) -> list[tuple[int, int]]:
+    """Consecutive move ranges [lo, hi) of about ``size`` (default ``CHUNK_SAMPLES``)
+    samples each (at least one move); ``ends_at`` (m,) is the cumulative sample count."""
+    size = CHUNK_SAMPLES if size is None else size
     out, lo = [], 0
     while lo < len(ends_at):
         start = ends_at[lo - 1] if lo else 0
-        hi = max(int(np.searchsorted(ends_at, start + CHUNK_SAMPLES, side="right")), lo + 1)
+        hi = max(int(np.searchsorted(ends_at, start + size, side="right")), lo + 1)
         out.append((lo, hi))
         lo = hi
     return out
@@ -278,7 +279,7 @@ def sample_count(length: np.ndarray, turn: np.ndarray, spacing: float, angle_ste
                  ) -> int:
     """How many samples :func:`sample_moves` takes of moves of XYZ ``length`` and A/C
     ``turn`` (both (m,)), without taking them."""
-    return int(_counts(length, turn, spacing, angle_step).sum())
+    return int(sample_counts(length, turn, spacing, angle_step).sum())
 
 
 def extruding_moves(parsed: ParsedGcode, lengths: tuple[np.ndarray, np.ndarray] | None = None

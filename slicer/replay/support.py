@@ -62,6 +62,27 @@ def depth_limit(s: Samples, layer_height: float, line_width: float | None = None
     return dmax
 
 
+def max_depth(h_max: float, layer_height: float, line_width: float | None = None) -> float:
+    """The largest :func:`depth_limit` of samples whose beads are at most ``h_max`` high."""
+    d = DEPTH_FACTOR * max(layer_height, h_max) + 1e-6
+    if line_width is not None and layer_height < THIN_LAYER * line_width:
+        d += layer_height
+    return d
+
+
+def support_reach(depth: float, layer_height: float, line_width: float) -> float:
+    """How far from a sample the support search reaches (its candidates lie within this of
+    the sample), for a largest searched ``depth``, mm."""
+    return search_radius(depth, layer_height, line_width) + layer_height
+
+
+def search_radius(depth: float, layer_height: float, line_width: float) -> float:
+    """The candidates' distance bound from the point one layer beneath a sample, mm."""
+    tan = math.tan(math.radians(OVERHANG_DEG))
+    slack = LATERAL_SLACK * line_width
+    return math.hypot(depth, depth * tan + slack) + layer_height
+
+
 def _check(s: Samples, top: np.ndarray, below: np.ndarray, dmax: np.ndarray,
            slack: float, half_width: float) -> np.ndarray:
     """Which (top, below) pairs put ``below``'s bead in the support cone of ``top``.
@@ -140,13 +161,17 @@ def platform_support(p: np.ndarray, u: np.ndarray, dmax: np.ndarray, radius: flo
 
 def strict_support(s: Samples, layer_height: float, line_width: float,
                    platform_radius: float, tree: cKDTree | None = None,
-                   judged: np.ndarray | None = None) -> np.ndarray:
+                   judged: np.ndarray | None = None, depth: float | None = None
+                   ) -> np.ndarray:
     """The support rule for the samples ``judged`` (indices, (m,); all when ``None``), with
     every sample's bead as material beneath: (m,) bool.
 
     Candidates are the ``NEIGHBOURS`` samples nearest a point one layer height beneath each
     sample along its axis (where supporting material lies); material of the same or later
-    layers is farther from there, so the nearest candidates are the supporting ones.
+    layers is farther from there, so the nearest candidates are the supporting ones. They are
+    searched within :func:`search_radius` of ``depth`` (default: the largest
+    :func:`depth_limit` of ``s``): ``s`` may then be the samples near the judged ones only,
+    every sample within :func:`support_reach` of them, with ``depth`` that of all samples.
     """
     judged = np.arange(len(s)) if judged is None else judged
     dmax = depth_limit(s, layer_height, line_width)
@@ -157,9 +182,7 @@ def strict_support(s: Samples, layer_height: float, line_width: float,
         ok[chunk] = platform_support(s.p[j], s.u[j], dmax[j], platform_radius, slack)
     if len(s) < 2:
         return ok
-    reach = float(dmax.max())
-    tan = math.tan(math.radians(OVERHANG_DEG))
-    r = math.hypot(reach, reach * tan + slack) + layer_height
+    r = search_radius(float(dmax.max()) if depth is None else depth, layer_height, line_width)
     tree = tree or point_tree(s.p)
     todo = np.flatnonzero(~ok)
     for k in (1, min(NEIGHBOURS, len(s))):  # the nearest candidate settles most samples
@@ -240,19 +263,6 @@ def bridged(s: Samples, candidates: np.ndarray, layer_height: float, line_width:
     return out
 
 
-def bad_wall_layers(seq: np.ndarray, wall: np.ndarray, supported: np.ndarray) -> list[int]:
-    """Layers (print order) where more than 5 % of wall points are unsupported: ``seq``,
-    ``wall`` and ``supported`` (m,) are the judged points' layers and masks."""
-    if not wall.any():
-        return []
-    seq = seq[wall]
-    n_seq = int(seq.max()) + 2
-    total = np.bincount(seq + 1, minlength=n_seq)
-    bad = np.bincount(seq[~supported[wall]] + 1, minlength=n_seq)
-    share = bad / np.maximum(total, 1)
-    return [int(k) - 1 for k in np.flatnonzero(share > BAD_LAYER_SHARE)]
-
-
 @dataclass
 class LayerSupport:
     """Unsupported extrusion of every printed layer, by length (one row per layer).
@@ -303,6 +313,16 @@ class LayerSupport:
     def worst(self) -> int | None:
         """Row of the layer nearest the refusal zone (``None`` without layers)."""
         return int(np.argmax(self.severity)) if len(self.seq) else None
+
+    @classmethod
+    def joined(cls, parts: list[LayerSupport]) -> LayerSupport:
+        """The rows of ``parts`` (of distinct layers, in print order) as one."""
+        if not parts:
+            e = np.zeros(0)
+            return cls(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), e,
+                       e, e, e, np.zeros((0, 3)))
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in (
+            "seq", "subpart", "layer", "z", "length", "unsupported", "run", "where")))
 
 
 def layer_support(s: Samples, judged: np.ndarray, supported: np.ndarray,

@@ -79,6 +79,8 @@ def test_a_part_upside_down_is_turned_onto_its_base_and_says_why(tmp_path, capsy
 
 
 def test_with_a_fixed_root_the_refusal_names_the_larger_face(tmp_path, capsys):
+    import json
+
     from hostd.cli.errors import EXIT_FAILED
 
     model = _upside_down_pipe2(tmp_path)
@@ -90,4 +92,11 @@ def test_with_a_fixed_root_the_refusal_names_the_larger_face(tmp_path, capsys):
                         "normal +Z in the file) is 7.1× larger and may decompose: turn the part "
                         "to stand on it, or leave the root region automatic (no --root) so the "
                         "slicer tries it")
-    assert not (tmp_path / "o").exists()
+    # refused, it still writes the refusal and a picture of the part with its point
+    record = json.loads((tmp_path / "o" / "decomposition.json").read_text())
+    assert record["refused"] == err.removeprefix(f"hostctl: {model}: ")
+    assert sorted(p.name for p in (tmp_path / "o").iterdir()) == ["decomposition.json",
+                                                                  "preview.png"]
+    [(x, y, z)] = record["points"]  # the rim's overhang, now on top: in the placed frame
+    assert z == pytest.approx(57.0, abs=1.0) and abs(x) < 10.0 and abs(y) < 10.0
+    assert record["seed"] == 0 and record["parts"] == 0

@@ -21,6 +21,15 @@ READY = "ready (socket"
 PART_BYTES = 3 << 16  # hostctl's parts
 
 
+async def hostctl(sock: Path, *args: str) -> tuple[int, str, str]:
+    """``hostctl --socket SOCK ARGS...`` in a child process: (exit code, stdout, stderr)."""
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "hostd.cli.main", "--socket", str(sock), *args,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=str(ROOT))
+    out, err = await proc.communicate()
+    return proc.returncode or 0, out.decode(), err.decode()
+
+
 def make_gcode(subparts: int = 3, layers: int = 3, per_layer: int = 40) -> str:
     """A synthetic sliced file: start script, sub-parts with layers, transitions between."""
     out = [';HOSTD_ESTIMATE {"filament_mm": 100.0, "time_s": 600.0}',

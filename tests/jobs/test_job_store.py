@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from hostd.jobs import JobNotFound, JobState, JobStateError, JobStore, Spool, SpoolError
 from hostd.jobs.states import ALLOWED, TERMINAL, can_transition, check_transition
-from hostd.jobs.store import StoreError
+from hostd.jobs.store import SCHEMA_VERSION, StoreError
 
 SHA = "a" * 64
 
@@ -116,11 +116,49 @@ def test_wal_mode_and_schema_version(tmp_path):
     JobStore(path).close()
     db = sqlite3.connect(path)
     assert db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
-    assert db.execute("PRAGMA user_version").fetchone()[0] == 1
+    assert db.execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION == 2
     db.execute("PRAGMA user_version=99")
     db.close()
     with pytest.raises(Exception, match="schema 99"):
         JobStore(path)
+
+
+# the jobs table as version 1 of the schema made it (before allow_overhang, slice_options)
+V1_JOBS = """CREATE TABLE jobs (
+    id INTEGER PRIMARY KEY AUTOINCREMENT, name TEXT NOT NULL,
+    kind TEXT NOT NULL CHECK (kind IN ('stl', 'gcode')), upload_sha TEXT NOT NULL,
+    gcode_sha TEXT, state TEXT NOT NULL, reason TEXT NOT NULL DEFAULT '',
+    created_at REAL NOT NULL, updated_at REAL NOT NULL, started_at REAL, finished_at REAL,
+    total_lines INTEGER NOT NULL DEFAULT 0, acked_lines INTEGER NOT NULL DEFAULT 0,
+    subpart INTEGER, layer INTEGER, filament_mm REAL NOT NULL DEFAULT 0,
+    print_seconds REAL NOT NULL DEFAULT 0, modal TEXT NOT NULL DEFAULT '{}',
+    estimate TEXT NOT NULL DEFAULT '{}', info TEXT NOT NULL DEFAULT '{}',
+    resume TEXT NOT NULL DEFAULT '{}')"""
+
+
+def test_a_version_1_database_is_migrated_and_its_jobs_kept(tmp_path):
+    path = tmp_path / "jobs.db"
+    db = sqlite3.connect(path)
+    db.execute(V1_JOBS)
+    db.execute("INSERT INTO jobs (name, kind, upload_sha, state, reason, created_at, "
+               "updated_at, acked_lines) VALUES ('old.stl', 'stl', ?, 'completed', 'done', "
+               "1.0, 2.0, 42)", (SHA,))
+    db.execute("PRAGMA user_version=1")
+    db.commit()
+    db.close()
+    store = JobStore(path)
+    old = store.get(1)
+    assert (old.name, old.state, old.reason, old.acked_lines) == ("old.stl",
+                                                                  JobState.COMPLETED, "done", 42)
+    assert old.allow_overhang is False and old.slice_options == {}
+    new = store.add("new.stl", "stl", SHA, allow_overhang=True, slice_options={"seed": 3})
+    store.close()
+    again = JobStore(path)  # opened once more: version 2 now, nothing to migrate
+    assert again.get(new.id).allow_overhang is True
+    assert again.get(new.id).slice_options == {"seed": 3}
+    assert again.get(new.id).to_dict()["allow_overhang"] is True
+    again.close()
+    assert sqlite3.connect(path).execute("PRAGMA user_version").fetchone()[0] == SCHEMA_VERSION
 
 
 def test_counts_and_queue_length(store):

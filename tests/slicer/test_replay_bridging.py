@@ -31,6 +31,7 @@ from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
 from slicer.printhead import Printhead
 from slicer.replay import check as replay
 from slicer.replay.check import replay_check
+from slicer.replay.passes import Rules, _bridging, _wall
 from slicer.replay.samples import Samples, geometry_from_header, move_lengths
 from slicer.replay.support import (
     OVERHANG_RUN,
@@ -132,8 +133,9 @@ def _verdicts(plan: PrintPlan, mesh: trimesh.Trimesh, settings: ProcessSettings 
                          bead_area, w, t)[1]
     judged = replay.judged_samples(len(s))
     ok = strict_support(s, t, w, 150.0, judged=judged)
-    bridge = replay._bridging(replay.model_index(mesh, w), s, ok, t, w,
-                              settings.infill_density)
+    rules = Rules(w, t, settings.infill_density, settings.perimeters, 150.0,
+                  replay.JUDGE_STRIDE, replay.INSIDE_SLACK * w)
+    bridge = _bridging(replay.model_index(mesh, w), s, judged, ok, rules)
     return judged, ok, bridge, s
 
 
@@ -303,21 +305,21 @@ def test_the_first_skin_crosses_the_sparse_lines_beneath():
         assert abs(float(here @ below)) < 1e-6, (i, kind)
 
 
-def test_a_skin_bridging_sparse_infill_under_the_top_holds_its_walls():
+def test_a_skin_bridging_sparse_infill_under_the_top_is_no_wall_over_air():
     """The first skin lies within the wall distance of the top: its samples between the
-    sparse lines fail the strict rule but bridge, and the wall figures count them held."""
+    sparse lines fail the strict rule but bridge, so no wall layer is over air."""
     judged, ok, bridge, s = _verdicts(sparse_box(SPACING), box_mesh())
     index = replay.model_index(box_mesh(), W)
-    wall = replay._wall(index, s.p[judged], W)[1]
+    wall = _wall(index, s.p[judged], W)[1]
     skin = s.layer[judged] == FIRST_SKIN
     assert (skin & wall & ~ok & bridge).sum() > 10
     rep = _replay(sparse_box(SPACING), box_mesh())
-    assert rep.wall_supported == 1.0 and rep.unsupported_wall_layers == []
+    assert rep.wall_layers_over_air == 0
 
 
-def test_a_ledge_keeps_its_walls_in_the_air():
+def test_a_ledge_keeps_its_walls_over_air():
     """The slab jutting beyond the box bridges nothing (its footprint is outside the layer
-    beneath): its wall samples stay unsupported in the wall figures."""
+    beneath): its wall layer is over air."""
     rep = _replay(sparse_box(SPACING, LEDGE, SMALL), box_mesh(LEDGE, SMALL))
-    assert rep.wall_supported < 0.99
-    assert f"sub-part 0 layer {FIRST_SKIN}" in rep.unsupported_wall_layers
+    assert rep.wall_layers_over_air >= 1
+    assert (0, FIRST_SKIN) in [(w.subpart, w.layer) for w in rep.wall_layers]
