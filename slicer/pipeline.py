@@ -206,7 +206,7 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
                 planar: bool = False, build_volume: np.ndarray | None = None,
                 check: bool = True, keep_plan: bool = False,
                 travel: ArrayLike = envelope.DEFAULT_TRAVEL, allow_overhang: bool = False,
-                knobs: Knobs | None = None) -> SliceResult:
+                knobs: Knobs | None = None, repair_rounds: int | None = None) -> SliceResult:
     """Slice a part to checked G-code.
 
     Parameters
@@ -229,6 +229,9 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         Return a file with unsupported wall layers (with ``warning``) instead of refusing it.
     knobs : slicer.advice.Knobs, optional
         How a refusal names what to try (default: the config keys).
+    repair_rounds : int, optional
+        Leaning tries of the closed loop at most (default :data:`REPAIR_ROUNDS`; 0: the
+        paper's upright root only).
 
     Raises
     ------
@@ -272,7 +275,7 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
             return _finish(mesh, replanned, settings, setup, index, {}, t2, keep_plan, name,
                            seed, policy, judge=False)
 
-        retry = again if plan.decomposition is not None else None
+        retry = again if plan.decomposition is not None and repair_rounds != 0 else None
         leaned = 0
         try:
             first = _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name,
@@ -281,7 +284,7 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
             if retry is None:
                 raise
             first, leaned = _leaned_instead(exc, retry), 1
-        best = _repaired(first, retry, timings, done=leaned)
+        best = _repaired(first, retry, timings, repair_rounds, done=leaned)
         result = _judged(best, seed, policy)
         return replace(result, merged_shells=placement.merged_shells,
                        base_note=None if plan.base is None else plan.base.note)
@@ -389,9 +392,9 @@ def _repaired(first: _Try, again: Callable[[LeanHints], _Try] | None,
     harder there; the first lean takes none, the upright try's misses are not its own), at
     most ``rounds`` times (default :data:`REPAIR_ROUNDS`); the best try (:meth:`_Try.rank`)
     is kept. A try that fails outright (a collision, a layer in the air, a plane the head
-    cannot clear) ends the loop. The rounds' seconds are ``timings["repair"]`` and their
-    number ``timings["repair_rounds"]``; ``done`` rounds were taken before (``first`` is
-    then a leaning try)."""
+    cannot clear), or a hinted one no better than the best, ends the loop. The rounds'
+    seconds are ``timings["repair"]`` and their number ``timings["repair_rounds"]``;
+    ``done`` rounds were taken before (``first`` is then a leaning try)."""
     best = last = first
     hints = NO_HINTS
     t0 = time.perf_counter()
@@ -407,6 +410,8 @@ def _repaired(first: _Try, again: Callable[[LeanHints], _Try] | None,
             break
         log.info("repair round %d: %d wall layers over air (best so far %d)", done,
                  last.over_air, best.over_air)
+        if last.rank() >= best.rank() and done > 1:
+            break  # hints that bring nothing: more of them would not either
         if last.rank() < best.rank():
             best = last
     if done:
