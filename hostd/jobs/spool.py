@@ -1,6 +1,9 @@
 """Content-addressed upload storage: every upload is kept once, named by its sha256.
 
-The daemon only ever reads files it stored here itself; a client never names a path.
+The daemon only ever reads files it stored here itself; a client never names a path. The
+directory is the daemon's alone (0700, its files 0600: a member of the hostd group who may
+use the control socket may not reach in), and a file read back is checked against its
+digest (:meth:`Spool.read`): a file changed on disk after its checks is never printed.
 """
 
 from __future__ import annotations
@@ -13,6 +16,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
+
+from hostd.state_files import private_dir
 
 _SHA = re.compile(r"^[0-9a-f]{64}$")
 
@@ -90,7 +95,7 @@ class Spool:
     def __init__(self, root: str | Path, max_bytes: int) -> None:
         self.root = Path(root)
         self.max_bytes = int(max_bytes)
-        self.root.mkdir(parents=True, exist_ok=True)
+        private_dir(self.root)
         for stale in self.root.glob(".*.tmp"):  # uploads a stopped daemon left half-written
             stale.unlink(missing_ok=True)
 
@@ -142,7 +147,14 @@ class Spool:
         return path
 
     def read(self, digest: str, suffix: str) -> bytes:
-        return self.path(digest, suffix).read_bytes()
+        """The file of ``digest``, checked against it: :class:`SpoolError` when its content
+        changed since it was stored (and checked)."""
+        data = self.path(digest, suffix).read_bytes()
+        actual = hashlib.sha256(data).hexdigest()
+        if actual != digest:
+            raise SpoolError(f"spool file {digest[:12]}{suffix} changed after its checks "
+                             f"(its digest is now {actual[:12]}): not used")
+        return data
 
     def remove(self, digest: str, suffix: str) -> None:
         """Delete a stored file (no error if it is already gone)."""
