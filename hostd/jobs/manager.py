@@ -211,6 +211,8 @@ class JobManager:
         else:
             self.printing.request_resume(job_id, scope)
         await left.wait()
+        if (refused := self.printing.refused.pop(job_id, None)) is not None:
+            raise JobStateError(refused)
         return self.store.get(job_id)
 
     async def cancel(self, job_id: int, wait: bool = True) -> Job:

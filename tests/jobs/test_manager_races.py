@@ -221,3 +221,26 @@ async def test_deleting_a_job_removes_its_file_once_no_other_job_uses_it(tmp_pat
         await mgr.delete(second.id)
     assert not kept(second) and kept(other)
     assert mgr.status()["counts"]["cancelled"] == 0
+
+
+@pytest.mark.asyncio
+@pytest.mark.timeout(30)
+async def test_an_interrupted_job_without_markers_goes_on_from_its_acknowledged_line(
+        tmp_path: Path):
+    from hostd.jobs.states import JobStateError
+
+    wire: list[str] = []
+    mgr = GatedManager(tmp_path, wire)
+    stopped = add_job(mgr, "stopped", JobState.INTERRUPTED)  # G90, G1 X1 Y33, G1 X2
+    mgr.store.update(stopped.id, acked_lines=2)
+    mgr.start()
+    async with asyncio.timeout(10):
+        with pytest.raises(JobStateError, match="no ;HOSTD_LAYER markers"):
+            await mgr.resume(stopped.id, "subpart")
+        assert mgr.store.get(stopped.id).state is JobState.INTERRUPTED and wire == []
+        await mgr.resume(stopped.id, "layer")
+        done = await mgr.wait_finished(stopped.id)
+    assert done.state is JobState.COMPLETED
+    assert not printed(wire, "stopped")  # its first move is not printed again
+    assert wire[0] == "G28" and "G1 X2" in wire
+    await mgr.stop()
