@@ -32,7 +32,7 @@ from hostd.jobs.progress import ProgressRecorder
 from hostd.jobs.queue import JobQueue
 from hostd.jobs.resume import resume_point, resume_scope
 from hostd.jobs.slice_loop import SliceLoop
-from hostd.jobs.spool import SUFFIX, Spool, Staged, upload_kind
+from hostd.jobs.spool import SUFFIX, Spool, Staged, check_name, upload_kind
 from hostd.jobs.states import TERMINAL, JobState, JobStateError
 from hostd.jobs.store import Job, JobStore
 from hostd.printer.envelope import Envelope
@@ -63,6 +63,7 @@ class JobManager:
         self.printing = PrintLoop(self.queue, self.recorder, port_factory, settings,
                                   self._load_program, printer)
         self.recovered: list[int] = []
+        self._recovered = False
         self._tasks: list[asyncio.Task[None]] = []
         # the queue's wake-up and waiters, under the names the tests use
         self._wake_print = self.queue.wake_print
@@ -98,8 +99,15 @@ class JobManager:
 
     # -- life cycle ------------------------------------------------------------------------
 
+    def recover(self) -> None:
+        """After a restart, the jobs a crash left printing or slicing, interrupted or queued
+        again (once): before any client can see them, so none sees a dead job printing."""
+        if not self._recovered:
+            self._recovered = True
+            self.recovered += self.queue.recover()
+
     def start(self) -> None:
-        self.recovered += self.queue.recover()
+        self.recover()
         self._tasks = [asyncio.create_task(self.printing.run(), name="print-loop"),
                        asyncio.create_task(self.slicer.run(), name="slice-loop")]
         for task in self._tasks:
@@ -158,6 +166,7 @@ class JobManager:
         try:
             if self.queue.stopping:
                 raise ShuttingDown("the daemon is shutting down")
+            check_name(name)
             kind = upload_kind(name, kind)
             self.spool.check_size(staged.size, name)
             await asyncio.to_thread(staged.finish)  # on disk before the worker reads it

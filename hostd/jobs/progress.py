@@ -66,6 +66,7 @@ class ProgressRecorder:
 
     def persist(self, act: Active, force: bool = False) -> None:
         st = act.streamer
+        st.sync_acked()  # the firmware's line, not the end of the last whole batch
         act.last_persist = time.monotonic()
         self.store.update(act.job.id, acked_lines=st.acked, subpart=st.subpart, layer=st.layer,
                           modal=st.modal.snapshot(), filament_mm=st.modal.extruded,

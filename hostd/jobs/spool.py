@@ -13,6 +13,7 @@ import hashlib
 import os
 import re
 import tempfile
+import unicodedata
 from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
@@ -167,6 +168,28 @@ class Spool:
 
 KINDS = {".stl": "stl", ".gcode": "gcode", ".gco": "gcode", ".g": "gcode", ".nc": "gcode"}
 SUFFIX = {"stl": ".stl", "gcode": ".gcode"}
+
+
+HIDDEN_CATEGORIES = frozenset({"Cc", "Cf", "Cs", "Co", "Zl", "Zp"})
+"""Characters a job name may not hold: controls, formatting (the bidirectional overrides and
+isolates U+202A..U+202E, U+2066..U+2069, zero-width marks), surrogates, private use and line
+or paragraph separators: each changes what ``hostctl jobs`` shows of a name, not only of
+itself (``part\u202elts.gcode`` shows as ``partedoc g.stl``)."""
+
+
+def _hidden(ch: str) -> bool:
+    return unicodedata.category(ch) in HIDDEN_CATEGORIES
+
+
+def check_name(name: str) -> None:
+    """Refuse an upload name holding a character of :data:`HIDDEN_CATEGORIES`, naming it
+    (the name shown with each such character escaped)."""
+    for ch in name:
+        if _hidden(ch):
+            shown = "".join(f"\\u{ord(c):04x}" if _hidden(c) else c for c in name)
+            raise SpoolError(f"job name '{shown}' "
+                             f"holds U+{ord(ch):04X} ({unicodedata.name(ch, 'a control')}): it "
+                             "would change how the name shows; rename the file")
 
 
 def upload_kind(name: str, kind: str | None) -> str:
