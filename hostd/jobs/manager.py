@@ -34,6 +34,7 @@ from hostd.jobs.resume import resume_point, resume_scope
 from hostd.jobs.slice_loop import SliceLoop
 from hostd.jobs.spool import SUFFIX, Spool, Staged, check_name, upload_kind
 from hostd.jobs.states import TERMINAL, JobState, JobStateError
+from hostd.jobs.storage import StorageGuard
 from hostd.jobs.store import Job, JobStore
 from hostd.printer.envelope import Envelope
 from hostd.printer.modal import ModalState
@@ -58,7 +59,8 @@ class JobManager:
         self.printer = printer
         self.checker = FileChecker(envelope)  # whole-file checks, off the loop's GIL
         self.queue = JobQueue(store, bus, hold_after_print)
-        self.recorder = ProgressRecorder(self.queue)
+        self.storage = StorageGuard(self.queue, settings.idle_timeout)
+        self.recorder = ProgressRecorder(self.queue, self.storage)
         self.slicer = SliceLoop(self.queue, spool, worker, self.checker)
         self.printing = PrintLoop(self.queue, self.recorder, port_factory, settings,
                                   self._load_program, printer)
@@ -109,7 +111,8 @@ class JobManager:
     def start(self) -> None:
         self.recover()
         self._tasks = [asyncio.create_task(self.printing.run(), name="print-loop"),
-                       asyncio.create_task(self.slicer.run(), name="slice-loop")]
+                       asyncio.create_task(self.slicer.run(), name="slice-loop"),
+                       asyncio.create_task(self.storage.run(), name="storage")]
         for task in self._tasks:
             task.add_done_callback(_log_death)
         self.queue.wake_print.set()
@@ -131,6 +134,7 @@ class JobManager:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         await self.recorder.settle()  # its thread must be done before the store closes
+        await self.storage.close()
         act = self.queue.active
         if act is not None:
             self.recorder.persist(act, force=True)
@@ -214,6 +218,9 @@ class JobManager:
         if self.printer is not None and not self.printer.connected:
             raise PrinterBusy("the printer is not ready (serial link down or halted): wait for "
                               "it to reconnect, or hostctl firmware-restart after a halt")
+        if not self.store.flush():
+            raise JobStateError(f"job {job_id} cannot go on while the job database cannot be "
+                                f"written ({self.store.failure}): make room, then resume")
         left = self.queue.left.setdefault(job_id, asyncio.Event())
         if paused is not None:
             paused.streamer.request_resume()
@@ -335,6 +342,7 @@ class JobManager:
                 "latest": None if latest is None else latest.status(),
                 "recovered": list(self.recovered), "db_checkpoints": self.recorder.checkpoints,
                 "waiting_for_printer": self.printing.waiting_for_printer,
+                "storage": self.storage.status(),
                 "queue": self.queue.queue_status(),
                 "file_checks": self.checker.status()}
 

@@ -37,6 +37,13 @@ def _storing() -> Iterator[None]:
         raise SpoolError(f"cannot store the upload: {exc.strerror or exc}") from None
 
 
+def _close(fh: BinaryIO) -> None:
+    """Close ``fh``; what it still buffered is lost when the disk refuses it (full): the
+    upload is refused or discarded then, and the close must not fail a second time."""
+    with contextlib.suppress(OSError):  # (the descriptor is closed all the same)
+        fh.close()
+
+
 class Staged:
     """An upload on its way into the spool: a temporary file there, hashed as it is written.
 
@@ -67,16 +74,18 @@ class Staged:
     def finish(self) -> str:
         """Flush the file to disk and close it; the sha256 hex digest of what was written."""
         if self._fh is not None:
+            fh, self._fh = self._fh, None
             with _storing():
-                self._fh.flush()
-                os.fsync(self._fh.fileno())
-            self._fh.close()
-            self._fh = None
+                try:
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                finally:
+                    _close(fh)
         return self._sha.hexdigest()
 
     def discard(self) -> None:
         if self._fh is not None:
-            self._fh.close()
+            _close(self._fh)
             self._fh = None
         if not self.committed:
             self.path.unlink(missing_ok=True)
