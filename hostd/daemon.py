@@ -85,6 +85,9 @@ class LinkPort:
     async def query(self, command: str) -> tuple[Reply, ...]:
         return (await self.link.query(command),)
 
+    def acknowledged(self) -> int:
+        return self.link.protocol.last_acked
+
 
 def _state_dir_problem(state_dir: Path, exc: OSError) -> str:
     """One line for a state directory hostd cannot make or use: the file in the way of it
@@ -162,6 +165,7 @@ class Daemon:
                                 self.bus, stream_settings_from_config(self.config),
                                 envelope_from_config(self.config.data), printer=self.link,
                                 hold_after_print=self.config["daemon.next_job"] == "after_clear")
+        self.jobs.recover()  # before the socket opens: no client sees a dead job printing
         self.server = ControlServer(self.config["daemon.socket"], build_registry(self),
                                     self.bus, self.limits)
         try:

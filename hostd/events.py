@@ -25,7 +25,8 @@ EVENT_NAMES = (
     "printer.temperatures",  # {"heaters": {...}}
     "printer.state",     # {"state": ..., "reason": ...}
     "queue.state",       # {"held": bool, "reason": str | None}: the hold was set or lifted
-)
+    "storage",           # {"failing": bool, "error", "since", "heaters_off"}: the job database
+)                        # refused a write (a full disk), turned the heaters off, or is back
 
 
 class EventError(Exception):

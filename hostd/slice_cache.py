@@ -15,6 +15,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+from hostd.state_files import PRIVATE_FILE, private_dir
+
 log = logging.getLogger(__name__)
 
 SIZE_KEY = "gcode_bytes"
@@ -22,10 +24,11 @@ SIZE_KEY = "gcode_bytes"
 
 
 def write_durably(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` whole or not at all (a temporary file, fsync, rename)."""
+    """Write ``data`` to ``path`` whole or not at all (a temporary file, fsync, rename),
+    readable by the daemon alone (0600)."""
     tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
     try:
-        with open(tmp, "wb") as fh:
+        with open(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, PRIVATE_FILE), "wb") as fh:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
@@ -49,7 +52,7 @@ class SliceCache:
 
     def __init__(self, root: Path) -> None:
         self.root = root
-        root.mkdir(parents=True, exist_ok=True)
+        private_dir(root)  # 0700, files 0600: the hostd group may not swap a sliced file
 
     def gcode_path(self, key: str) -> Path:
         return self.root / f"{key}.gcode"
@@ -77,6 +80,7 @@ class SliceCache:
     def store(self, key: str, info: dict[str, Any]) -> dict[str, Any]:
         """Record the figures of the G-code the worker wrote (and renamed) to
         :meth:`gcode_path`, after flushing it to disk; the figures as stored."""
+        self.gcode_path(key).chmod(PRIVATE_FILE)
         info = {**info, SIZE_KEY: sync_file(self.gcode_path(key))}
         write_durably(self._meta_path(key), json.dumps(info).encode())
         return info

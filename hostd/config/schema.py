@@ -196,6 +196,10 @@ SCHEMA: dict[str, dict[str, Field]] = {
                              "and the way back down, and the climb to the safe Z and back "
                              "when a resume brings the head back (after a move by hand, or "
                              "for an interrupted job).", 10.0, lo=0.1, hi=500.0),
+        "idle_timeout": Number("Seconds a job paused while the job database cannot be "
+                               "written (a full disk) keeps its heaters on; then hostd turns "
+                               "them off (the resume heats them again). 0: at once.", 300.0,
+                               lo=0.0, hi=86400.0),
     },
     "daemon": {
         "socket": Text("Path of the JSON-RPC control socket.", "/run/hostd/hostd.sock",

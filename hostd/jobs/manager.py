@@ -32,8 +32,9 @@ from hostd.jobs.progress import ProgressRecorder
 from hostd.jobs.queue import JobQueue
 from hostd.jobs.resume import resume_point, resume_scope
 from hostd.jobs.slice_loop import SliceLoop
-from hostd.jobs.spool import SUFFIX, Spool, SpoolError, Staged, upload_kind
+from hostd.jobs.spool import SUFFIX, Spool, SpoolError, Staged, check_name, upload_kind
 from hostd.jobs.states import TERMINAL, JobState, JobStateError
+from hostd.jobs.storage import StorageGuard
 from hostd.jobs.store import Job, JobStore
 from hostd.printer.envelope import Envelope
 from hostd.printer.modal import ModalState
@@ -58,11 +59,13 @@ class JobManager:
         self.printer = printer
         self.checker = FileChecker(envelope)  # whole-file checks, off the loop's GIL
         self.queue = JobQueue(store, bus, hold_after_print)
-        self.recorder = ProgressRecorder(self.queue)
+        self.storage = StorageGuard(self.queue, settings.idle_timeout)
+        self.recorder = ProgressRecorder(self.queue, self.storage)
         self.slicer = SliceLoop(self.queue, spool, worker, self.checker)
         self.printing = PrintLoop(self.queue, self.recorder, port_factory, settings,
                                   self._load_program, printer)
         self.recovered: list[int] = []
+        self._recovered = False
         self._tasks: list[asyncio.Task[None]] = []
         # the queue's wake-up and waiters, under the names the tests use
         self._wake_print = self.queue.wake_print
@@ -98,10 +101,18 @@ class JobManager:
 
     # -- life cycle ------------------------------------------------------------------------
 
+    def recover(self) -> None:
+        """After a restart, the jobs a crash left printing or slicing, interrupted or queued
+        again (once): before any client can see them, so none sees a dead job printing."""
+        if not self._recovered:
+            self._recovered = True
+            self.recovered += self.queue.recover()
+
     def start(self) -> None:
-        self.recovered += self.queue.recover()
+        self.recover()
         self._tasks = [asyncio.create_task(self.printing.run(), name="print-loop"),
-                       asyncio.create_task(self.slicer.run(), name="slice-loop")]
+                       asyncio.create_task(self.slicer.run(), name="slice-loop"),
+                       asyncio.create_task(self.storage.run(), name="storage")]
         for task in self._tasks:
             task.add_done_callback(_log_death)
         self.queue.wake_print.set()
@@ -123,6 +134,7 @@ class JobManager:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         await self.recorder.settle()  # its thread must be done before the store closes
+        await self.storage.close()
         act = self.queue.active
         if act is not None:
             self.recorder.persist(act, force=True)
@@ -162,6 +174,7 @@ class JobManager:
         try:
             if self.queue.stopping:
                 raise ShuttingDown("the daemon is shutting down")
+            check_name(name)
             kind = upload_kind(name, kind)
             if kind == "gcode" and options != SliceOptions():
                 raise SpoolError(f"{name}: a G-code file is not sliced here: the slice options "
@@ -214,12 +227,17 @@ class JobManager:
         if self.printer is not None and not self.printer.connected:
             raise PrinterBusy("the printer is not ready (serial link down or halted): wait for "
                               "it to reconnect, or hostctl firmware-restart after a halt")
+        if not self.store.flush():
+            raise JobStateError(f"job {job_id} cannot go on while the job database cannot be "
+                                f"written ({self.store.failure}): make room, then resume")
         left = self.queue.left.setdefault(job_id, asyncio.Event())
         if paused is not None:
             paused.streamer.request_resume()
         else:
             self.printing.request_resume(job_id, scope)
         await left.wait()
+        if (refused := self.printing.refused.pop(job_id, None)) is not None:
+            raise JobStateError(refused)
         return self.store.get(job_id)
 
     async def cancel(self, job_id: int, wait: bool = True) -> Job:
@@ -333,6 +351,7 @@ class JobManager:
                 "latest": None if latest is None else latest.status(),
                 "recovered": list(self.recovered), "db_checkpoints": self.recorder.checkpoints,
                 "waiting_for_printer": self.printing.waiting_for_printer,
+                "storage": self.storage.status(),
                 "queue": self.queue.queue_status(),
                 "file_checks": self.checker.status()}
 

@@ -20,7 +20,7 @@ from hostd.jobs.file_check import parse_upload
 from hostd.jobs.joblog import log
 from hostd.jobs.progress import ProgressRecorder
 from hostd.jobs.queue import JobQueue
-from hostd.jobs.resume import resume_point
+from hostd.jobs.resume import ResumeRefused, resume_point
 from hostd.jobs.spool import Spool, SpoolError
 from hostd.jobs.states import JobState, JobStateError
 from hostd.jobs.store import Job, JobNotFound
@@ -70,6 +70,7 @@ class PrintLoop:
         self.load = load
         self.printer = printer
         self.resume_request: tuple[int, str] | None = None
+        self.refused: dict[int, str] = {}  # job → why its resume was refused (it waits)
         self.waiting_for_printer = False  # a job is ready but the link is down or halted
 
     async def run(self) -> None:
@@ -131,6 +132,10 @@ class PrintLoop:
             program = await self.load(job)
             start, modal, prelude = await resume_point(queue.store, job, program, scope,
                                                        self.settings)
+        except ResumeRefused as exc:  # the job stays interrupted; resume() says why
+            self.refused[job_id] = str(exc)
+            queue.release_waiters(job_id)
+            return
         except (SpoolError, PrinterError) as exc:
             queue.set_state(job_id, JobState.FAILED, f"cannot resume: {exc}")
             return

@@ -17,7 +17,8 @@ from hostd.jobs.figures import JobFigures
 from hostd.jobs.joblog import log
 from hostd.jobs.queue import JobQueue
 from hostd.jobs.states import JobState
-from hostd.jobs.store import StoreError
+from hostd.jobs.storage import StorageGuard
+from hostd.jobs.store import StorageError, StoreError
 from hostd.printer.program import Transition
 from hostd.printer.streamer import Hooks, Streamer
 
@@ -28,9 +29,10 @@ EVENT_INTERVAL = 0.2  # s between progress events
 class ProgressRecorder:
     """The hooks of the job on the printer (:attr:`JobQueue.active`)."""
 
-    def __init__(self, queue: JobQueue) -> None:
+    def __init__(self, queue: JobQueue, storage: StorageGuard | None = None) -> None:
         self.queue = queue
         self.store = queue.store
+        self.storage = storage if storage is not None else StorageGuard(queue, 300.0)
         self.transitions = {"total": 0, "failed": 0}
         self.checkpoints = 0  # the database's, done
         self.checkpoint_task: asyncio.Task[None] | None = None
@@ -66,10 +68,12 @@ class ProgressRecorder:
 
     def persist(self, act: Active, force: bool = False) -> None:
         st = act.streamer
+        st.sync_acked()  # the firmware's line, not the end of the last whole batch
         act.last_persist = time.monotonic()
         self.store.update(act.job.id, acked_lines=st.acked, subpart=st.subpart, layer=st.layer,
                           modal=st.modal.snapshot(), filament_mm=st.modal.extruded,
                           print_seconds=act.elapsed(act.last_persist))
+        self.storage.check(act)  # a write the disk refused pauses the job
         if self.store.claim_checkpoint() and not self.queue.stopping and (
                 self.checkpoint_task is None or self.checkpoint_task.done()):
             self.checkpoint_task = asyncio.create_task(self._run_checkpoint(),
@@ -92,6 +96,7 @@ class ProgressRecorder:
         self.persist(act, force=True)
         self.store.update(act.job.id, modal=(st.paused_modal or st.modal).snapshot())
         self.queue.set_state(act.job.id, JobState.PAUSED, reason)
+        self.storage.paused(act)
         evt = self.queue.paused.pop(act.job.id, None)
         if evt is not None:
             evt.set()
@@ -101,6 +106,7 @@ class ProgressRecorder:
         if act is None:
             return
         act.resume_clock(time.monotonic())
+        self.storage.resumed()
         self.queue.set_state(act.job.id, JobState.PRINTING, "resumed")
 
     def on_checkpoint(self, st: Streamer, tr: Transition, pose: dict[str, float]) -> None:
@@ -108,8 +114,12 @@ class ProgressRecorder:
         if act is None:
             return
         self.transitions["total"] += 1
-        self.store.add_checkpoint(act.job.id, tr.subpart, tr.parent, pose.get("A", 0.0),
-                                  pose.get("C", 0.0), tr.end, pose)
+        try:
+            self.store.add_checkpoint(act.job.id, tr.subpart, tr.parent, pose.get("A", 0.0),
+                                      pose.get("C", 0.0), tr.end, pose)
+        except StorageError as exc:  # the guard pauses the job (persist below)
+            log.warning("job %d: checkpoint of sub-part %d not kept: %s", act.job.id,
+                        tr.subpart, exc)
         self.persist(act, force=True)
 
     def on_event(self, job_id: int, name: str, data: dict[str, Any]) -> None:

@@ -1,6 +1,9 @@
 """Content-addressed upload storage: every upload is kept once, named by its sha256.
 
-The daemon only ever reads files it stored here itself; a client never names a path.
+The daemon only ever reads files it stored here itself; a client never names a path. The
+directory is the daemon's alone (0700, its files 0600: a member of the hostd group who may
+use the control socket may not reach in), and a file read back is checked against its
+digest (:meth:`Spool.read`): a file changed on disk after its checks is never printed.
 """
 
 from __future__ import annotations
@@ -10,9 +13,12 @@ import hashlib
 import os
 import re
 import tempfile
+import unicodedata
 from collections.abc import Iterator
 from pathlib import Path
 from typing import BinaryIO
+
+from hostd.state_files import private_dir
 
 _SHA = re.compile(r"^[0-9a-f]{64}$")
 
@@ -29,6 +35,13 @@ def _storing() -> Iterator[None]:
         yield
     except OSError as exc:
         raise SpoolError(f"cannot store the upload: {exc.strerror or exc}") from None
+
+
+def _close(fh: BinaryIO) -> None:
+    """Close ``fh``; what it still buffered is lost when the disk refuses it (full): the
+    upload is refused or discarded then, and the close must not fail a second time."""
+    with contextlib.suppress(OSError):  # (the descriptor is closed all the same)
+        fh.close()
 
 
 class Staged:
@@ -61,16 +74,18 @@ class Staged:
     def finish(self) -> str:
         """Flush the file to disk and close it; the sha256 hex digest of what was written."""
         if self._fh is not None:
+            fh, self._fh = self._fh, None
             with _storing():
-                self._fh.flush()
-                os.fsync(self._fh.fileno())
-            self._fh.close()
-            self._fh = None
+                try:
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                finally:
+                    _close(fh)
         return self._sha.hexdigest()
 
     def discard(self) -> None:
         if self._fh is not None:
-            self._fh.close()
+            _close(self._fh)
             self._fh = None
         if not self.committed:
             self.path.unlink(missing_ok=True)
@@ -90,7 +105,7 @@ class Spool:
     def __init__(self, root: str | Path, max_bytes: int) -> None:
         self.root = Path(root)
         self.max_bytes = int(max_bytes)
-        self.root.mkdir(parents=True, exist_ok=True)
+        private_dir(self.root)
         for stale in self.root.glob(".*.tmp"):  # uploads a stopped daemon left half-written
             stale.unlink(missing_ok=True)
 
@@ -142,7 +157,14 @@ class Spool:
         return path
 
     def read(self, digest: str, suffix: str) -> bytes:
-        return self.path(digest, suffix).read_bytes()
+        """The file of ``digest``, checked against it: :class:`SpoolError` when its content
+        changed since it was stored (and checked)."""
+        data = self.path(digest, suffix).read_bytes()
+        actual = hashlib.sha256(data).hexdigest()
+        if actual != digest:
+            raise SpoolError(f"spool file {digest[:12]}{suffix} changed after its checks "
+                             f"(its digest is now {actual[:12]}): not used")
+        return data
 
     def remove(self, digest: str, suffix: str) -> None:
         """Delete a stored file (no error if it is already gone)."""
@@ -155,6 +177,28 @@ class Spool:
 
 KINDS = {".stl": "stl", ".gcode": "gcode", ".gco": "gcode", ".g": "gcode", ".nc": "gcode"}
 SUFFIX = {"stl": ".stl", "gcode": ".gcode"}
+
+
+HIDDEN_CATEGORIES = frozenset({"Cc", "Cf", "Cs", "Co", "Zl", "Zp"})
+"""Characters a job name may not hold: controls, formatting (the bidirectional overrides and
+isolates U+202A..U+202E, U+2066..U+2069, zero-width marks), surrogates, private use and line
+or paragraph separators: each changes what ``hostctl jobs`` shows of a name, not only of
+itself (``part\u202elts.gcode`` shows as ``partedoc g.stl``)."""
+
+
+def _hidden(ch: str) -> bool:
+    return unicodedata.category(ch) in HIDDEN_CATEGORIES
+
+
+def check_name(name: str) -> None:
+    """Refuse an upload name holding a character of :data:`HIDDEN_CATEGORIES`, naming it
+    (the name shown with each such character escaped)."""
+    for ch in name:
+        if _hidden(ch):
+            shown = "".join(f"\\u{ord(c):04x}" if _hidden(c) else c for c in name)
+            raise SpoolError(f"job name '{shown}' "
+                             f"holds U+{ord(ch):04X} ({unicodedata.name(ch, 'a control')}): it "
+                             "would change how the name shows; rename the file")
 
 
 def upload_kind(name: str, kind: str | None) -> str:

@@ -12,15 +12,21 @@ of the database file, while a job streams (`bench/store.py`: such a commit took 
 the project's VM, where hostd's longest took 0.8–1.2 ms; an SD card syncs far more slowly).
 The owner asks :meth:`JobStore.claim_checkpoint` after its writes and runs
 :meth:`JobStore.checkpoint`, which uses a connection of its own, on a worker thread.
+
+A write the disk refuses (full, read-only, an I/O error) is no crash: a job's state, its
+progress and the settings are kept in memory as *pending* (reads show them), :attr:`failure`
+names the error in one line, and :meth:`flush` writes them once the disk takes them again.
+What cannot wait (a new job, a deletion, a checkpoint row) raises :class:`StorageError`.
 """
 
 from __future__ import annotations
 
 import builtins
+import contextlib
 import json
 import sqlite3
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -103,6 +109,14 @@ class JobNotFound(StoreError):
     """No job has the requested id."""
 
 
+class StorageError(StoreError):
+    """The disk refused a write of the job database (full, read-only, an I/O error)."""
+
+
+_REFUSED = (sqlite3.OperationalError, sqlite3.DatabaseError)
+"""What SQLite raises when the disk refuses a write (SQLITE_FULL, SQLITE_IOERR, ...)."""
+
+
 @dataclass
 class Job:
     """One row of ``jobs``, JSON columns decoded."""
@@ -181,6 +195,11 @@ class JobStore:
         self._clock = clock
         self._checkpoint_changes = checkpoint_changes
         self._claimed = 0  # total changes when the last checkpoint was claimed
+        self.failure: str | None = None  # the disk's refusal while writes are pending
+        self.on_failure: Callable[[], None] = lambda: None  # called as writes start failing
+        self._pending: dict[int, dict[str, Any]] = {}  # job → columns not yet written
+        self._pending_history: list[tuple[int, float, str, str, str]] = []
+        self._pending_settings: dict[str, str | None] = {}
         try:
             self._db = sqlite3.connect(self.path, isolation_level=None,
                                        check_same_thread=False)
@@ -249,9 +268,10 @@ class JobStore:
     def add(self, name: str, kind: str, upload_sha: str, gcode_sha: str | None = None,
             estimate: dict[str, Any] | None = None, allow_overhang: bool = False,
             slice_options: dict[str, Any] | None = None) -> Job:
-        """Insert a new ``queued`` job and return it."""
+        """Insert a new ``queued`` job and return it (:class:`StorageError` while the disk
+        refuses writes)."""
         now = self._clock()
-        with self._db:
+        with self._refused("a new job"), self._db:
             cur = self._db.execute(
                 "INSERT INTO jobs (name, kind, upload_sha, gcode_sha, state, created_at,"
                 " updated_at, estimate, allow_overhang, slice_options)"
@@ -269,13 +289,34 @@ class JobStore:
         row = self._db.execute("SELECT * FROM jobs WHERE id = ?", (job_id,)).fetchone()
         if row is None:
             raise JobNotFound(f"no job {job_id}")
-        return _job(row)
+        return self._overlaid(_job(row))
+
+    def _overlaid(self, job: Job) -> Job:
+        """``job`` with the columns still pending (as written)."""
+        pending = self._pending.get(job.id)
+        if pending:
+            for column, value in pending.items():
+                setattr(job, column, JobState(value) if column == "state" else value)
+        return job
+
+    def _pending_jobs(self, states: Iterable[JobState] | None) -> builtins.list[Job]:
+        """Every job (in ``states``) as reads show it while writes are pending, oldest first:
+        the pending states decide, not the database's."""
+        wanted = None if states is None else set(states)
+        rows = self._db.execute("SELECT * FROM jobs ORDER BY id").fetchall()
+        jobs = [self._overlaid(_job(r)) for r in rows]
+        return [j for j in jobs if wanted is None or j.state in wanted]
 
     def list(self, states: Iterable[JobState] | None = None, limit: int = 1000,
              newest: bool = False) -> list[Job]:
         """Jobs oldest first, optionally only those in ``states``: the oldest ``limit`` of
         them, or with ``newest`` the newest ``limit`` (still oldest first); ``limit`` 0: all.
         """
+        if self._pending:
+            jobs = self._pending_jobs(states)
+            if limit:
+                jobs = jobs[-limit:] if newest else jobs[:limit]
+            return jobs
         where, args = self._where(states)
         order = "DESC" if newest else "ASC"
         rows = self._db.execute(f"SELECT * FROM jobs{where} ORDER BY id {order} LIMIT ?",
@@ -285,6 +326,8 @@ class JobStore:
 
     def count(self, states: Iterable[JobState] | None = None) -> int:
         """How many jobs there are (in ``states``)."""
+        if self._pending:
+            return len(self._pending_jobs(states))
         where, args = self._where(states)
         return int(self._db.execute(f"SELECT COUNT(*) FROM jobs{where}", args).fetchone()[0])
 
@@ -297,6 +340,8 @@ class JobStore:
 
     def first(self, state: JobState) -> Job | None:
         """The oldest job in ``state`` (the head of that queue)."""
+        if self._pending:
+            return next(iter(self._pending_jobs([state])), None)
         row = self._db.execute("SELECT * FROM jobs WHERE state = ? ORDER BY id LIMIT 1",
                                (state.value,)).fetchone()
         return None if row is None else _job(row)
@@ -314,12 +359,9 @@ class JobStore:
         if new in TERMINAL:
             sets.append("finished_at = ?")
             args.append(now)
-        with self._db:
-            self._db.execute(f"UPDATE jobs SET {', '.join(sets)} WHERE id = ?",
-                             (*args, job_id))
-            self._db.execute("INSERT INTO history (job_id, at, old, new, reason)"
-                             " VALUES (?, ?, ?, ?, ?)",
-                             (job_id, now, job.state.value, new.value, reason))
+        columns = dict(zip((s.split(" ")[0] for s in sets), args, strict=True))
+        self._pending_history.append((job_id, now, job.state.value, new.value, reason))
+        self._write(job_id, columns)
         return self.get(job_id)
 
     def update(self, job_id: int, **fields: Any) -> None:
@@ -327,28 +369,84 @@ class JobStore:
         bad = set(fields) - _WRITABLE
         if bad:
             raise StoreError(f"not writable: {', '.join(sorted(bad))}")
-        cols = list(fields)
-        vals = [json.dumps(fields[c]) if c in _JSON_COLUMNS else fields[c] for c in cols]
+        self._write(job_id, {**fields, "updated_at": self._clock()})
+
+    def _write(self, job_id: int, columns: dict[str, Any]) -> None:
+        """Write ``columns`` of a job (and the history rows pending) in one transaction; if
+        the disk refuses, keep them pending (see the module docstring)."""
+        self._pending.setdefault(job_id, {}).update(columns)
+        self.flush()
+
+    def flush(self) -> bool:
+        """Write everything pending, in one transaction; whether the disk took it (then
+        :attr:`failure` is cleared), else :attr:`failure` names why."""
+        if not (self._pending or self._pending_history or self._pending_settings):
+            return True
+        try:
+            with self._db:
+                for job_id, columns in self._pending.items():
+                    self._update(job_id, columns)
+                self._db.executemany("INSERT INTO history (job_id, at, old, new, reason)"
+                                     " VALUES (?, ?, ?, ?, ?)", self._pending_history)
+                for key, value in self._pending_settings.items():
+                    self._put_setting(key, value)
+        except _REFUSED as exc:
+            self._failed(exc)
+            return False
+        self._pending.clear()
+        self._pending_history.clear()
+        self._pending_settings.clear()
+        self.failure = None
+        return True
+
+    def _failed(self, exc: Exception) -> None:
+        first = self.failure is None
+        self.failure = f"job database {self.path}: {exc}"
+        if first:
+            self.on_failure()
+
+    def _update(self, job_id: int, columns: dict[str, Any]) -> None:
+        cols = list(columns)
+        vals = [json.dumps(columns[c]) if c in _JSON_COLUMNS else columns[c] for c in cols]
+        vals = [v.value if isinstance(v, JobState) else v for v in vals]
         sets = ", ".join(f"{c} = ?" for c in cols)
-        self._db.execute(f"UPDATE jobs SET {sets}, updated_at = ? WHERE id = ?",
-                         (*vals, self._clock(), job_id))
+        self._db.execute(f"UPDATE jobs SET {sets} WHERE id = ?", (*vals, job_id))
+
+    @contextlib.contextmanager
+    def _refused(self, what: str) -> Iterator[None]:
+        """A write that cannot wait: :class:`StorageError` when the disk refuses it, or
+        while other writes are still pending (they go first)."""
+        if self.failure is not None and not self.flush():
+            raise StorageError(f"{what} cannot be stored: {self.failure}")
+        try:
+            yield
+        except _REFUSED as exc:
+            self._failed(exc)
+            raise StorageError(f"{what} cannot be stored: {self.failure}") from None
 
     def delete(self, job_id: int) -> Job:
         """Remove a job that does not own the printer; returns the removed row."""
         job = self.get(job_id)
         if job.state in ACTIVE:
             raise StoreError(f"job {job_id} is {job.state}; cancel it first")
-        with self._db:
+        with self._refused(f"the deletion of job {job_id}"), self._db:
             self._db.execute("DELETE FROM jobs WHERE id = ?", (job_id,))
         return job
 
     def setting(self, key: str) -> str | None:
         """A persisted daemon setting (the queue hold), ``None`` when unset."""
+        if key in self._pending_settings:
+            return self._pending_settings[key]
         row = self._db.execute("SELECT value FROM settings WHERE key = ?", (key,)).fetchone()
         return None if row is None else str(row[0])
 
     def set_setting(self, key: str, value: str | None) -> None:
-        """Persist ``value`` under ``key`` (``None`` removes it)."""
+        """Persist ``value`` under ``key`` (``None`` removes it; pending while the disk
+        refuses writes)."""
+        self._pending_settings[key] = value
+        self.flush()
+
+    def _put_setting(self, key: str, value: str | None) -> None:
         if value is None:
             self._db.execute("DELETE FROM settings WHERE key = ?", (key,))
         else:
@@ -369,6 +467,10 @@ class JobStore:
     def counts(self) -> dict[str, int]:
         """Number of jobs in every state (all states present, zeros included)."""
         out = {s.value: 0 for s in JobState}
+        if self._pending:
+            for job in self._pending_jobs(None):
+                out[job.state.value] += 1
+            return out
         for row in self._db.execute("SELECT state, COUNT(*) FROM jobs GROUP BY state"):
             out[row[0]] = int(row[1])
         return out
@@ -400,10 +502,11 @@ class JobStore:
 
     def add_checkpoint(self, job_id: int, subpart: int, parent: int | None, a: float, c: float,
                        line: int, pose: dict[str, float] | None = None) -> Checkpoint:
-        cur = self._db.execute(
-            "INSERT INTO checkpoints (job_id, at, subpart, parent, a, c, line, pose)"
-            " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
-            (job_id, self._clock(), subpart, parent, a, c, line, json.dumps(pose or {})))
+        with self._refused(f"a checkpoint of job {job_id}"):
+            cur = self._db.execute(
+                "INSERT INTO checkpoints (job_id, at, subpart, parent, a, c, line, pose)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (job_id, self._clock(), subpart, parent, a, c, line, json.dumps(pose or {})))
         row = self._db.execute("SELECT * FROM checkpoints WHERE seq = ?",
                                (cur.lastrowid,)).fetchone()
         return _checkpoint(row)

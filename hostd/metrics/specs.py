@@ -98,6 +98,9 @@ SPECS: tuple[Spec, ...] = (
          "(daemon.next_job: after_clear) or the operator held the queue.", "jobs.queue.held"),
     Spec("hostd_queue_waiting_for_printer", "gauge", "1 while a ready job waits for the serial "
          "link (down or halted).", "jobs.waiting_for_printer"),
+    Spec("hostd_storage_failing", "gauge", "1 while the job database cannot be written (a full "
+         "disk, a failing card): the job printing is paused (reason storage error), uploads "
+         "are refused; 0 once the writes go through again.", "jobs.storage.failing"),
     Spec("hostd_jobs_finished_total", "counter", "Jobs finished since hostd started, by "
          "outcome (0 at each start, as every counter here).", "metrics.jobs_finished",
          label="outcome"),

@@ -7,13 +7,17 @@ it is queued (an upload, or the slicer's own output), so a file made for another
 one whose moves leave the travel, is refused at submission rather than clamped by the
 firmware's software endstops halfway through a print.
 
-The travel is followed as the firmware would: ``G90``/``G91``, ``G92`` offsets (so the
-checked values are machine coordinates) and ``G28`` (after it an axis' position is the
-endstop's, unknown here: relative moves from it are not checked until an absolute one).
-A block of commands in absolute mode with none of those (nearly every block of a sliced
-file) is read with one regular-expression search per axis over its moves; the others
-command by command. An axis word repeated in one move counts every value (the firmware
-takes the last).
+Every command is read as the firmware reads it (:func:`slicer.gcode.markers.marlin_words`):
+``M104 S 400``, ``M104S400``, ``M65640 S400`` (the code wraps at 65536) and ``G1X9999`` are
+what they are to Marlin, not words this check would skip. The travel is followed as the
+firmware would: ``G90``/``G91``, ``G92`` offsets (so the checked values are machine
+coordinates) and ``G28`` (after it an axis' position is the endstop's, unknown here: relative
+moves from it are not checked until an absolute one). A block of commands in absolute mode
+with none of those, every line of it in the plain form a blank split reads as Marlin does
+(nearly every block of a sliced file), is read with one regular-expression search per axis
+over its moves; the others command by command. An axis word or heater target repeated in
+one command counts every value (Marlin takes the last, a build without FASTER_GCODE_PARSER
+the first).
 """
 
 from __future__ import annotations
@@ -25,8 +29,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from hostd.printer.errors import ProgramError
-from hostd.printer.modal import AXES, JOIN_LINES, words
+from hostd.printer.modal import AXES, JOIN_LINES
 from hostd.printer.program import Program
+from slicer.gcode.markers import marlin_words
 
 TRAVEL_TOL = 1e-3  # mm or degrees past a limit still accepted (the slicer's rounding)
 KINEMATICS_TOL = 1e-6
@@ -36,13 +41,16 @@ HEADER_KEYS = {"table_origin": "machine.table_origin", "a_pivot": "machine.a_piv
                "a_limits": "machine.a_limits", "c_limits": "machine.c_limits",
                "platform_radius": "machine.platform_radius", "printhead": "printhead.segments"}
 _VALUES = {axis: re.compile(rf" {axis}([^ \n]+)") for axis in AXES}
-_MOVE_WORDS = re.compile(r"^G[0-3](?= |$)([^\n]*)", re.M)  # a move's words, after its code
+_MOVE_WORDS = re.compile(r"^G0*[0-3](?= |$)([^\n]*)", re.M)  # a move's words, after its code
+_PLAIN_BLOCK = re.compile(  # lines a blank split reads as Marlin does: a code of at most four
+    r"(?:[GMT][0-9]{1,4}(?: [A-Z][-+]?[0-9]*\.?[0-9]*)*\n"  # digits, words of a letter and
+    r"|M0*(?:23|28|30|117|118|928)(?: [^\n]*)?\n)*")  # what float() reads as strtof or refuses
 _BY_COMMAND = re.compile(  # commands only a command-by-command reading follows: modes,
-    r"^(?:[a-z]|G0\d|G9[01]\b|G92\b(?=[^\n]* [XYZACxyzac])|G28\b)", re.M)  # offsets, homing
-_ODD_WORD = re.compile(r" (?:[a-z]|[XYZAC](?= |\n))")  # in a move: lowercase, a bare axis
-HEATERS = {"M104": "hotend", "M109": "hotend", "M140": "bed", "M190": "bed"}
+    r"^G0*(?:9[01]|28(?= |$)|92 [^\n]*[XYZAC])", re.M)  # homing, offsets of an axis
+HEATERS = {"M104": "hotend", "M109": "hotend", "M140": "bed", "M190": "bed", "M303": "hotend"}
 HEATER_KEYS = {"hotend": "machine.max_hotend_temp", "bed": "machine.max_bed_temp"}
-_HEATING = re.compile(r"^M1(?:04|09|40|90)(?= |$)[^\n]*", re.M)
+TARGET_WORDS = ("S", "R", "B")  # set point, wait-for (M109/M190 R), AUTOTEMP's highest (B)
+_M_LINE = re.compile(r"^ *(?:[Nn][-0-9][0-9]* *)?[Mm][^\n]*", re.M)  # what may be an M code
 
 
 @dataclass(frozen=True)
@@ -82,20 +90,26 @@ class Envelope:
             return
         for start in range(0, len(program.commands), JOIN_LINES):
             text = "\n".join(program.commands[start:start + JOIN_LINES])
-            for found in _HEATING.finditer(text):
+            for found in _M_LINE.finditer(text):
                 self._check_target(program, start + text.count("\n", 0, found.start()),
                                    found.group())
 
     def _check_target(self, program: Program, index: int, command: str) -> None:
-        code, args = words(command)
-        heater = HEATERS[code]
-        limit = self.heaters.get(heater) if self.heaters else None
-        for key in ("S", "R"):
-            value = args.get(key)
-            if value is not None and value < 0:
+        """Every target ``command`` sets, as the firmware reads it, within the limits."""
+        code, args = marlin_words(command)
+        heater = HEATERS.get(code)
+        if heater is None or not self.heaters:
+            return
+        if code == "M303" and any(k == "E" and v == -1 for k, v in args):
+            heater = "bed"  # M303 E-1 tunes the bed
+        limit = self.heaters.get(heater)
+        for key, value in args:
+            if key not in TARGET_WORDS or value is None:
+                continue
+            if value < 0:
                 raise ProgramError(f"line {program.source_lines[index]}: {code} {key}{value:g}: "
                                    "a negative temperature")
-            if limit is not None and value is not None and value > limit:
+            if limit is not None and value > limit:
                 raise ProgramError(
                     f"line {program.source_lines[index]}: {code} {key}{value:g} is above the "
                     f"{heater}'s limit {limit:g} °C ({HEATER_KEYS[heater]})")
@@ -163,6 +177,7 @@ class _Travel:
         """Follow a block of commands."""
         text = "\n".join(commands) + "\n"
         plain = (self.absolute and text.count("\n") == len(commands)
+                 and _PLAIN_BLOCK.fullmatch(text) is not None
                  and _BY_COMMAND.search(text) is None)
         found = _move_values("\n".join(_MOVE_WORDS.findall(text)) + "\n") if plain else None
         if found is None:
@@ -174,19 +189,20 @@ class _Travel:
             self.pos[axis] = values[-1]
 
     def one(self, command: str) -> None:
-        code, args = words(command)
+        code, args = marlin_words(command)
         if code in ("G0", "G1", "G2", "G3"):
-            for axis in AXES:
-                if axis in args:
-                    self._move(axis, args[axis])
+            for axis, value in args:
+                if axis in self.pos and value is not None:  # no value: no move
+                    self._move(axis, value)
         elif code in ("G90", "G91"):
             self.absolute = code == "G90"
         elif code == "G92":
-            for axis in AXES:
-                if axis in args:
-                    self._set(axis, args[axis])
+            for axis, value in args:
+                if axis in self.pos and value is not None:
+                    self._set(axis, value)
         elif code == "G28":
-            for axis in [a for a in AXES if a in args] or AXES:
+            named = {axis for axis, _ in args if axis in self.pos}
+            for axis in [a for a in AXES if a in named] or AXES:
                 self.pos[axis], self.offset[axis] = None, 0.0
 
     def _move(self, axis: str, value: float) -> None:
@@ -214,10 +230,8 @@ class _Travel:
 
 def _move_values(words: str) -> dict[str, list[float]] | None:
     """Axis → the values absolute moves give it, in order, from their ``words`` (a line
-    each, the code left out); None when a word is not an upper-case letter and a finite
-    number (then the block is read command by command)."""
-    if _ODD_WORD.search(words):
-        return None
+    each, the code left out, every word a letter and a plain number or none); None when a
+    value is not a finite number (then the block is read command by command)."""
     found = {}
     for axis, pattern in _VALUES.items():
         try:

@@ -7,15 +7,15 @@ rebuild the state by replaying the file up to it.
 
 from __future__ import annotations
 
-import functools
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from slicer.gcode.markers import split_words
+from slicer.gcode.markers import marlin_words
 
 AXES = ("X", "Y", "Z", "A", "C")
+NAN = float("nan")
 JOIN_LINES = 4096  # commands joined into one text by ModalState.apply_many
 # a run of plain moves, one per line, each word a letter and a number float() reads as
 # words() does: these change only positions, E and F (see ModalState.apply_many)
@@ -24,34 +24,12 @@ _E_WORD = re.compile(r" E([^ \n]+)(?=[^E\n]*\n)")  # a move's last E word, as in
 
 
 def words(command: str) -> tuple[str, dict[str, float]]:
-    """``"G1 X1 Y-2.5"`` → ``("G1", {"X": 1.0, "Y": -2.5})``; unparsable words are skipped
-    (the words split by :func:`slicer.gcode.markers.split_words`)."""
-    first, parts = split_words(command)
-    if not first:
-        return "", {}
-    code = normal_code(first)
-    args: dict[str, float] = {}
-    for letter, value in parts:
-        if not letter.isalpha():
-            continue
-        if value:
-            try:
-                args[letter.upper()] = float(value)
-            except ValueError:
-                continue
-        else:
-            args[letter.upper()] = float("nan")  # bare axis letter (G28 X)
-    return code, args
-
-
-@functools.lru_cache(maxsize=1024)
-def normal_code(word: str) -> str:
-    """Normalise ``G01``/``g1`` to ``G1`` (cached: a file uses a handful of codes)."""
-    w = word.upper()
-    if len(w) > 1 and w[0] in "GMT" and w[1:].replace(".", "", 1).isdigit():
-        num = w[1:].lstrip("0") or "0"
-        return w[0] + num
-    return w
+    """``"G1 X1 Y-2.5"`` → ``("G1", {"X": 1.0, "Y": -2.5})``: the command and its parameters
+    as the firmware reads them (:func:`slicer.gcode.markers.marlin_words`: ``G1 X 5`` moves
+    X to 5, ``M104S200`` heats); a letter without a value is NaN (``G28 X``), a repeated one
+    keeps its last value, and a line the firmware takes for no command gives ``("", {})``."""
+    code, parts = marlin_words(command)
+    return code, {letter: NAN if value is None else value for letter, value in parts}
 
 
 @dataclass
@@ -123,6 +101,7 @@ class ModalState:
         position["E"], self.extruded = e, extruded
 
     def _move(self, args: dict[str, float]) -> None:
+        args = _valued(args)  # a letter without a value moves nothing (Marlin's seenval)
         for axis in AXES:
             if axis in args:
                 self.position[axis] = (args[axis] if self.absolute
@@ -135,6 +114,7 @@ class ModalState:
             self.feedrate = args["F"]
 
     def _set_position(self, args: dict[str, float]) -> None:
+        args = _valued(args)
         for axis in (*AXES, "E"):
             if axis in args:
                 self.position[axis] = args[axis]
@@ -158,15 +138,13 @@ class ModalState:
         self.e_absolute = False
 
     def _hotend(self, args: dict[str, float]) -> None:
-        if "S" in args:
-            self.hotend = args["S"]
+        self.hotend = _valued(args).get("S", self.hotend)
 
     def _bed(self, args: dict[str, float]) -> None:
-        if "S" in args:
-            self.bed = args["S"]
+        self.bed = _valued(args).get("S", self.bed)
 
     def _fan_on(self, args: dict[str, float]) -> None:
-        self.fan = int(args.get("S", 255))
+        self.fan = int(_valued(args).get("S", 255))
 
     def _fan_off(self, _args: dict[str, float]) -> None:
         self.fan = 0
@@ -245,6 +223,11 @@ class ModalState:
         """Turn off a heater this state has off (one an operator may have turned on)."""
         return [f"{code} S0" for code, target in (("M140", self.bed), ("M104", self.hotend))
                 if not target]
+
+
+def _valued(args: dict[str, float]) -> dict[str, float]:
+    """``args`` without the letters given with no value (NaN)."""
+    return {k: v for k, v in args.items() if v == v}
 
 
 def _plain_run_end(text: str, pos: int) -> int:

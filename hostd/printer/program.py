@@ -16,7 +16,7 @@ from typing import Any
 
 from hostd.link.framing import COMMAND_MAX, CONTROL, MAX_CMD_SIZE, checksum, strip_gcode
 from hostd.printer.errors import ProgramError
-from hostd.printer.modal import ModalState, normal_code
+from hostd.printer.modal import ModalState
 from slicer.gcode.markers import (
     ESTIMATE,
     KINEMATICS,
@@ -26,6 +26,7 @@ from slicer.gcode.markers import (
     TRANSITION,
     TRANSITION_END,
     PayloadError,
+    marlin_words,
     parse_marker,
     parse_payload,
     split_words,
@@ -44,8 +45,8 @@ RESERVED = {"M110": "line numbers are hostd's to set", "M112": "use hostctl esto
             "M999": "use hostctl firmware-restart"}
 """Commands a file or raw G-code may not send: the link numbers lines itself, and a stop or
 a restart of the firmware goes through hostd (the job's state follows)."""
-_RESERVED_LINE = re.compile(r"(?:^|\n)[Mm]0*(?:110|112|999)(?![0-9])")
-_CODE = re.compile(r"[A-Za-z][0-9]+")
+_RESERVED_LINE = re.compile(  # and a code of five digits or more, which may wrap to one
+    r"(?:^|\n)(?:[Mm]0*(?:110|112|999)(?![0-9])|[GMTgmt][0-9]{5})")
 
 
 @dataclass(frozen=True)
@@ -294,13 +295,6 @@ def _check_own_checksum(raw: str, lineno: int) -> None:
                            f"({checksum(body)}): the file is damaged")
 
 
-def _leading_code(word: str) -> str:
-    """``M0110`` or ``M110N0`` → ``M110``: the code as the firmware reads it, its letter and
-    the number that follows whatever comes after (normalised as the modal tracker does)."""
-    found = _CODE.match(word)
-    return normal_code(found[0]) if found else word.upper()
-
-
 def check_command(cmd: str, lineno: int) -> None:
     """Refuse a command a firmware would misread: a control character, a first word that is
     no G/M/T code (``hello``, ``X10``, ``%``), or an argument such as ``X1e400`` or ``Xnan``
@@ -311,7 +305,7 @@ def check_command(cmd: str, lineno: int) -> None:
         raise ProgramError(f"line {lineno}: {cmd.split()[0][:20]!r} is not a G-code "
                            "command (a G, M or T code and its number)")
     code, words = split_words(cmd)
-    if (why := RESERVED.get(_leading_code(code))) is not None:
+    if (why := RESERVED.get(marlin_words(cmd)[0])) is not None:  # M0110, M110N0, M65646
         raise ProgramError(f"line {lineno}: {code} is not allowed in a job or raw G-code "
                            f"({why})")
     if code.upper() in MESSAGES:

@@ -42,6 +42,8 @@ class StreamSettings:
     end_gcode: str = "M104 S0\nM140 S0\nM107\nG0 Z{safe_z} F3000\nG0 A0 C0 F3000\nM84\n"
     end_values: dict[str, Any] = field(default_factory=dict)
     """The end script's placeholders besides ``{safe_z}`` (the process settings)."""
+    idle_timeout: float = 300.0
+    """Seconds a job paused by a storage error keeps its heaters on (``pause.idle_timeout``)."""
 
 
 def stream_settings_from_config(cfg: Config) -> StreamSettings:
@@ -55,7 +57,7 @@ def stream_settings_from_config(cfg: Config) -> StreamSettings:
         lookahead=int(cfg.get("serial.max_queued", 64)),
         retract=float(p["retract_length"]), retract_f=per_minute(p["retract_speed"]),
         lift=float(pause["lift"]), lift_f=per_minute(pause["lift_speed"]),
-        travel_f=per_minute(p["travel_speed"]),
+        idle_timeout=float(pause["idle_timeout"]), travel_f=per_minute(p["travel_speed"]),
         rotary_f=per_minute(cfg["machine.max_rotary_velocity"]),
         safe_height=float(p["safe_height"]), z_max=float(cfg["machine.z_range"][1]),
         position_tolerance=float(t["position_tolerance"]),

@@ -58,6 +58,11 @@ class Port(Protocol):
         """Send ``command``, wait for its ok, return the replies that arrived for it."""
         ...
 
+    def acknowledged(self) -> int:
+        """The highest submission number acknowledged so far (the futures of a batch
+        complete only with its last line)."""
+        ...
+
 
 @dataclass
 class Hooks:
@@ -270,6 +275,23 @@ class Streamer:
         self._inflight.popleft()
         self._acked_to(batch.stop)
         self.hooks.progress(self)
+
+    def sync_acked(self) -> int:
+        """The commands acknowledged now, to the line: the batches' futures complete a batch
+        (half the lookahead) at a time, while the link counts every ``ok``. Taken note of as
+        :meth:`_ack_head` does (layer, modal state), so what is recorded of an interrupted
+        job (its line, its progress) is the firmware's last acknowledged line, not the end
+        of the last whole batch, up to a lookahead behind."""
+        if not self._inflight:
+            return self.acked
+        last = self.port.acknowledged()
+        for batch in self._inflight:
+            done = min(max(0, last - batch.first + 1), batch.stop - batch.start)
+            if batch.start + done > self.acked:
+                self._acked_to(batch.start + done)
+            if done < batch.stop - batch.start:
+                break
+        return self.acked
 
     def _acked_to(self, stop: int) -> None:
         """Commands up to ``stop - 1`` are acknowledged: follow the layer to the last."""

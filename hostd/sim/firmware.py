@@ -12,7 +12,10 @@ its line buffer and each complete line into the command queue (``BUFSIZE`` slots
 the queue has a free slot, and stops reading while it is full. A command's ``ok`` is sent once
 it has been processed, while it still holds its slot: with ADVANCED_OK it reads
 ``ok N<its line> P<free planner blocks> B<BUFSIZE - queued commands>``. A rejected line is
-answered by ``Error:…``, ``Resend: <last+1>`` and a bare ``ok``.
+answered by ``Error:…``, ``Resend: <last+1>`` and a bare ``ok``. A line is read as Marlin 2
+reads it: its ``;`` comment dropped by the queue, a numbered line's checksum after its last
+``*``, the command and its parameters as ``GCodeParser::parse`` finds them
+(:class:`~hostd.sim.machine.Command`).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ from collections import deque
 from hostd.sim.faults import Faults
 from hostd.sim.machine import FIRMWARE_NAME, Command, Machine
 from hostd.sim.settings import SimSettings
+from slicer.gcode.markers import queued_line
 
 _M112 = re.compile(rb"(?:^|[\s\d])M112(?:[\s*]|$)")
 HALT_MESSAGE = "Error:Printer halted. kill() called!"
@@ -232,12 +236,15 @@ class Firmware:
         if self.silence_left > 0:
             self.silence_left -= 1
             return
-        line = self.faults.corrupt(raw.rstrip(b"\r")).strip()
+        line = self.faults.corrupt(raw.rstrip(b"\r"))
+        if b";" in line or b"\\" in line:  # the queue drops a comment, keeps escaped text
+            line = queued_line(line.decode("latin-1")).encode("latin-1")
+        line = line.strip()
         if not line:
             return
         if line[:1] != b"N":
-            if b"*" in line:
-                self._reject("No Line Number with checksum")
+            if b"*" in line:  # Marlin 1.1's answer (Marlin 2 would run it, '*' cut): a line
+                self._reject("No Line Number with checksum")  # whose N a bit flip hit
             else:
                 self._enqueue(None, line)
             return
@@ -250,7 +257,8 @@ class Firmware:
         except ValueError:
             self._reject("Line Number is not Last Line Number+1")
             return
-        body, star, cs = rest.partition(b"*")
+        body = rest.partition(b"*")[0]  # what the parser reads: up to the first '*'
+        summed, star, cs = line.rpartition(b"*")  # the checksum: after the last (strrchr)
         is_m110 = body.strip().upper().startswith(b"M110")
         if number != self.last_n + 1 and not is_m110:
             self._reject("Line Number is not Last Line Number+1")
@@ -258,7 +266,7 @@ class Firmware:
         if not star:
             self._reject("No Checksum with line number")
             return
-        if not cs.strip().isdigit() or int(cs) != xor_checksum(line.partition(b"*")[0]):
+        if not cs.strip().isdigit() or int(cs) != xor_checksum(summed):
             self._reject("checksum mismatch")
             return
         self.last_n = number

@@ -9,14 +9,12 @@ reply lines).
 from __future__ import annotations
 
 import math
-import re
-import string
 from dataclasses import dataclass, field
 
 from hostd.sim.heaters import Heater
 from hostd.sim.planner import Planner
 from hostd.sim.settings import SimSettings
-from slicer.gcode.markers import split_words
+from slicer.gcode.markers import marlin_words
 
 AXES = ("X", "Y", "Z", "A", "C")
 LINEAR = ("X", "Y", "Z")
@@ -26,13 +24,16 @@ ROTARY_SPEED = 90.0  # degrees per second
 HOME_SECONDS = 2.0
 FIRMWARE_NAME = "Marlin 2.1.2-hostd-sim"
 CAPABILITIES = ("AUTOREPORT_TEMP", "EMERGENCY_PARSER", "AUTOREPORT_POS", "EXTENDED_M20")
-_LETTERS = frozenset(string.ascii_uppercase)
-_NUMBER = re.compile(r"[-+]?\d*\.?\d*")  # what a parameter's value is read as
 
 
 @dataclass
 class Command:
-    """One command taken from the queue: its line number (if any) and text."""
+    """One command taken from the queue: its line number (if any) and text, read as Marlin
+    reads it (:func:`slicer.gcode.markers.marlin_words`, after ``GCodeParser::parse``):
+    ``code`` (``""`` for none: an unknown command), ``words`` the parameters with a value
+    (the last of a repeated one, as FASTER_GCODE_PARSER keeps), ``seen`` every letter given
+    (``G28 X``). Temperatures are read as value_float reads them (a build with
+    TEMPERATURE_UNITS_SUPPORT; stock Marlin's value_int reads no more)."""
 
     number: int | None
     text: str
@@ -40,20 +41,12 @@ class Command:
     until: float | None = None  # a dwell's end, fixed when first asked
     code: str = ""
     words: dict[str, float] = field(default_factory=dict)
+    seen: frozenset[str] = frozenset()
 
     def __post_init__(self) -> None:
-        self.code = self.text.partition(" ")[0].upper()
-        if self.code in ("M117", "M118"):
-            return
-        for letter, text in split_words(self.text)[1]:
-            key = letter.upper()
-            number = _NUMBER.match(text)  # the number the word starts with (always a match)
-            if key not in _LETTERS or number is None:
-                continue
-            try:
-                self.words[key] = float(number[0]) if number[0] else 0.0
-            except ValueError:  # a sign or a point alone
-                continue
+        self.code, parts = marlin_words(self.text)
+        self.words = {letter: value for letter, value in parts if value is not None}
+        self.seen = frozenset(letter for letter, _ in parts)
 
 
 class Machine:
@@ -62,7 +55,8 @@ class Machine:
     def __init__(self, settings: SimSettings) -> None:
         self.settings = settings
         self.planner = Planner(settings.planner_blocks)
-        self.position = dict.fromkeys((*AXES, "E"), 0.0)
+        self.position = dict.fromkeys((*AXES, "E"), 0.0)  # logical (after G92 offsets)
+        self.shift = dict.fromkeys(AXES, 0.0)  # machine position less logical (G92)
         self.drift = dict.fromkeys(ROTARY, 0.0)
         self.absolute = True
         self.absolute_e = True
@@ -78,10 +72,13 @@ class Machine:
 
     def start(self, cmd: Command, now: float) -> None:
         """Side effects that happen when the command begins."""
-        if cmd.code in ("M104", "M109") and "S" in cmd.words:
-            self.hotend.set_target(cmd.words["S"], now)
-        elif cmd.code in ("M140", "M190") and "S" in cmd.words:
-            self.bed.set_target(cmd.words["S"], now)
+        heater = {"M104": self.hotend, "M109": self.hotend, "M140": self.bed,
+                  "M190": self.bed}.get(cmd.code)
+        # M109/M190 take R when there is no S (Marlin: seenval('S') || seenval('R'))
+        keys = ("S",) if cmd.code in ("M104", "M140") else ("S", "R")
+        target = next((cmd.words[k] for k in keys if k in cmd.words), None)
+        if heater is not None and target is not None:
+            heater.set_target(target, now)
 
     def ready_at(self, cmd: Command, now: float) -> float:
         """Simulated time at which ``cmd`` can complete."""
@@ -155,9 +152,9 @@ class Machine:
             self.drift[axis] += s.lost_step_degrees
 
     def _home(self, cmd: Command, now: float) -> tuple[list[str], str | None]:
-        axes = [a for a in AXES if a in cmd.words] or list(AXES)
+        axes = [a for a in AXES if a in cmd.seen] or list(AXES)
         for a in axes:
-            self.position[a] = 0.0
+            self.position[a] = self.shift[a] = 0.0  # homing clears G92's offset (Marlin)
             if a in self.drift:
                 self.drift[a] = 0.0
         self.planner.add(HOME_SECONDS, now)
@@ -166,8 +163,14 @@ class Machine:
     def _set_position(self, cmd: Command, now: float) -> tuple[list[str], str | None]:
         for axis in (*AXES, "E"):
             if axis in cmd.words:
+                if axis in self.shift:  # the axis stays where it is: its offset changes
+                    self.shift[axis] += self.position[axis] - cmd.words[axis]
                 self.position[axis] = cmd.words[axis]
         return [], None
+
+    def machine_position(self) -> dict[str, float]:
+        """Where the axes are in machine coordinates (the travel's): G92 offsets undone."""
+        return {axis: self.position[axis] + self.shift[axis] for axis in AXES}
 
     def _modes(self, cmd: Command, now: float) -> tuple[list[str], str | None]:
         if cmd.code in ("G90", "G91"):

@@ -171,3 +171,41 @@ def test_a_metrics_port_in_use_is_a_one_line_start_error(tmp_path: Path):
     errors = [line for line in done.stderr.splitlines() if "ERROR" in line]
     assert len(errors) == 1 and "metrics.port" in errors[0] and str(port) in errors[0], errors
     assert not (tmp_path / "hostd.sock").exists()
+
+
+@pytest.mark.asyncio
+@pytest.mark.timeout(60)
+async def test_a_job_a_crash_left_printing_is_interrupted_before_the_socket_opens(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch):
+    """After a crash the job database still says ``printing``; a client that connects as
+    soon as the socket opens must see the job interrupted, never a dead job printing."""
+    from hostd.config.loader import defaults
+    from hostd.control.server import ControlServer
+    from hostd.daemon import Daemon
+    from hostd.jobs.states import JobState
+    from hostd.jobs.store import JobStore
+
+    state = tmp_path / "state"
+    state.mkdir()
+    store = JobStore(state / "jobs.db")
+    job = store.add("part.gcode", "gcode", "0" * 64, gcode_sha="0" * 64)
+    for s in (JobState.READY, JobState.PRINTING):
+        store.transition(job.id, s)
+    store.update(job.id, acked_lines=120)
+    store.close()
+    seen: list[str] = []
+    opened = ControlServer.start
+
+    async def start(self: ControlServer, *args: object) -> None:
+        seen.append(daemon.store.get(job.id).state.value)  # what the first client would see
+        await opened(self, *args)  # type: ignore[arg-type]
+
+    monkeypatch.setattr(ControlServer, "start", start)
+    daemon = Daemon(defaults().replace(daemon__socket=str(tmp_path / "hostd.sock"),
+                                       daemon__state_dir=str(state), metrics__enabled=False))
+    try:
+        async with asyncio.timeout(30):
+            await daemon.start()
+    finally:
+        await daemon.close()
+    assert seen == ["interrupted"]

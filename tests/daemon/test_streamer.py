@@ -48,6 +48,7 @@ class FakePort:
         self.log: list[str] = []
         self.fw = ModalState()
         self.lost_c_after = lost_c_after
+        self.acks = 0
 
     def submit(self, command: str) -> asyncio.Future[None]:
         self.log.append(command)
@@ -55,8 +56,12 @@ class FakePort:
         if self.lost_c_after is not None and len(self.log) == self.lost_c_after:
             self.fw.position["C"] += 1.5  # the C stepper lost steps
         fut = asyncio.get_running_loop().create_future()
-        asyncio.get_running_loop().call_soon(fut.set_result, None)
+        asyncio.get_running_loop().call_soon(self._ack, fut, len(self.log))
         return fut
+
+    def _ack(self, fut: asyncio.Future[None], seq: int) -> None:
+        self.acks = max(self.acks, seq)  # the submission number of the last line acked
+        fut.set_result(None)
 
     def submit_many(self, commands: list[str]) -> tuple[int, asyncio.Future[None]]:
         first = len(self.log) + 1
@@ -65,6 +70,9 @@ class FakePort:
 
     def withdraw(self, first: int, last: int) -> int:
         return 0  # every line goes out as it is submitted
+
+    def acknowledged(self) -> int:
+        return self.acks
 
     async def query(self, command: str):
         self.log.append(command)

@@ -27,13 +27,18 @@ class AckingPort:
     def __init__(self, log: list[str]) -> None:
         self.log = log
         self.fw = ModalState()
+        self.acks = 0
 
     def submit(self, command: str) -> asyncio.Future[None]:
         self.log.append(command)
         self.fw.apply(command)
         fut = asyncio.get_running_loop().create_future()
-        asyncio.get_running_loop().call_soon(fut.set_result, None)
+        asyncio.get_running_loop().call_soon(self._ack, fut, len(self.log))
         return fut
+
+    def _ack(self, fut: asyncio.Future[None], seq: int) -> None:
+        self.acks = max(self.acks, seq)  # the submission number of the last line acked
+        fut.set_result(None)
 
     def submit_many(self, commands: list[str]) -> tuple[int, asyncio.Future[None]]:
         first = len(self.log) + 1
@@ -41,6 +46,9 @@ class AckingPort:
 
     def withdraw(self, first: int, last: int) -> int:
         return 0  # every line goes out as it is submitted
+
+    def acknowledged(self) -> int:
+        return self.acks
 
     async def query(self, command: str) -> tuple[Any, ...]:
         self.log.append(command)
@@ -221,3 +229,76 @@ async def test_deleting_a_job_removes_its_file_once_no_other_job_uses_it(tmp_pat
         await mgr.delete(second.id)
     assert not kept(second) and kept(other)
     assert mgr.status()["counts"]["cancelled"] == 0
+
+
+@pytest.mark.asyncio
+@pytest.mark.timeout(30)
+async def test_an_interrupted_job_without_markers_goes_on_from_its_acknowledged_line(
+        tmp_path: Path):
+    from hostd.jobs.states import JobStateError
+
+    wire: list[str] = []
+    mgr = GatedManager(tmp_path, wire)
+    stopped = add_job(mgr, "stopped", JobState.INTERRUPTED)  # G90, G1 X1 Y33, G1 X2
+    mgr.store.update(stopped.id, acked_lines=2)
+    mgr.start()
+    async with asyncio.timeout(10):
+        with pytest.raises(JobStateError, match="no ;HOSTD_LAYER markers"):
+            await mgr.resume(stopped.id, "subpart")
+        assert mgr.store.get(stopped.id).state is JobState.INTERRUPTED and wire == []
+        await mgr.resume(stopped.id, "layer")
+        done = await mgr.wait_finished(stopped.id)
+    assert done.state is JobState.COMPLETED
+    assert not printed(wire, "stopped")  # its first move is not printed again
+    assert wire[0] == "G28" and "G1 X2" in wire
+    await mgr.stop()
+
+
+class HeldPort(AckingPort):
+    """Lines go out at once and are acknowledged only as far as the test says, one by one."""
+
+    def __init__(self, log: list[str], sent: int) -> None:
+        super().__init__(log)
+        self.futs: list[tuple[int, asyncio.Future[None]]] = []
+        self.enough = asyncio.Event()  # ``sent`` lines are out
+        self.sent = sent
+
+    def submit(self, command: str) -> asyncio.Future[None]:
+        self.log.append(command)
+        fut = asyncio.get_running_loop().create_future()
+        self.futs.append((len(self.log), fut))
+        if len(self.log) >= self.sent:
+            self.enough.set()
+        return fut
+
+    def ack_through(self, seq: int) -> None:
+        self.acks = seq
+        for number, fut in self.futs:
+            if number <= seq and not fut.done():
+                fut.set_result(None)
+
+
+@pytest.mark.asyncio
+@pytest.mark.timeout(30)
+async def test_an_interrupted_job_records_the_firmwares_last_acknowledged_line(
+        tmp_path: Path):
+    """The streamer takes note of acknowledgements a batch (32 lines) at a time; the line
+    recorded when the job is interrupted is the link's, to the line."""
+    wire: list[str] = []
+    port = HeldPort(wire, sent=64)
+    mgr = JobManager(JobStore(tmp_path / "jobs.db"), Spool(tmp_path / "spool", 1 << 20), None,
+                     lambda: port, EventBus(), StreamSettings(lookahead=64))
+    text = "G90\n" + "".join(f"G1 X{i % 50} Y{MARKS['x']} F600\n" for i in range(200))
+    sha = mgr.spool.put(text.encode(), ".gcode")
+    job = mgr.store.add("long.gcode", "gcode", sha, gcode_sha=sha)
+    mgr.store.update(job.id, total_lines=201)
+    mgr.store.transition(job.id, JobState.READY)
+    mgr.counts = mgr.store.counts()
+    mgr.start()
+    async with asyncio.timeout(10):
+        await port.enough.wait()  # two batches out, none acknowledged
+        port.ack_through(45)  # the first batch and 13 lines of the second
+        await mgr.stop()
+    stopped = mgr.store.get(job.id)
+    assert stopped.state is JobState.INTERRUPTED
+    assert stopped.acked_lines == 45 and stopped.reason.endswith("at line 45")

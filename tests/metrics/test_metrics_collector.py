@@ -37,6 +37,8 @@ def full_snapshot() -> dict:
                  "file_checks": {"checks": 5, "refused": 1, "worker_started": True},
                  "queue": {"held": True, "reason": "job 3 completed"},
                  "waiting_for_printer": False,
+                 "storage": {"failing": False, "error": None, "since": None,
+                             "heaters_off": False},
                  "latest": {"info": {"id": "j1", "name": "pipe"}, "state": "printing",
                             "progress": 0.25, "subpart": 1, "subparts_total": 3, "layer": 7,
                             "layers_total": 900, "elapsed_s": 12.0, "remaining_s": 36.0,
