@@ -37,6 +37,7 @@ from hostd.control.server import ControlError, ControlServer
 from hostd.errors import PrinterBusy
 from hostd.events import EventBus
 from hostd.jobs.manager import JobManager
+from hostd.jobs.notify import Notifier
 from hostd.jobs.spool import Spool
 from hostd.jobs.store import JobStore, StoreError
 from hostd.link.errors import LinkError
@@ -129,6 +130,7 @@ class Daemon:
         self.metrics: Any = None
         self._tasks: list[asyncio.Task[None]] = []
         self._jobs: JobManager | None = None
+        self.notifier: Notifier | None = None
         self._status_line = ""
         self._status_json: tuple[Encoded, float, int] | None = None  # (text, when, events)
         self._lock = StateLock(self.state_dir)
@@ -161,7 +163,8 @@ class Daemon:
         self._jobs = JobManager(self.store, spool, self.worker, lambda: LinkPort(self.link),
                                 self.bus, stream_settings_from_config(self.config),
                                 envelope_from_config(self.config.data), printer=self.link,
-                                hold_after_print=self.config["daemon.next_job"] == "after_clear")
+                                hold_after_print=self.config["daemon.next_job"] == "after_clear",
+                                resends=lambda: self.link.protocol.counters.lines_resent)
         self.server = ControlServer(self.config["daemon.socket"], build_registry(self),
                                     self.bus, self.limits)
         try:
@@ -174,6 +177,8 @@ class Daemon:
         self._tasks.append(asyncio.create_task(self._temperature_monitor(), name="temps"))
         if not connected:
             self._tasks.append(asyncio.create_task(self._link_supervisor(), name="link"))
+        self.notifier = Notifier(self.bus, self.config["notify.command"], self.jobs.job_detail,
+                                 self.config["notify.timeout"])
         self.bus.subscribe(lambda name, data: self._notify_status(),
                            ("job.state", "printer.state"))
         gc.freeze()  # what starting made lives on: later collections need not walk it
@@ -348,6 +353,8 @@ class Daemon:
         await asyncio.gather(*self._tasks, return_exceptions=True)
         if self._jobs is not None:  # first, so that clients get the job's last state
             await self._jobs.stop("daemon stopped (SIGTERM)")
+        if self.notifier is not None:
+            await self.notifier.close()
         if self.server is not None:
             await self.server.close()
         with contextlib.suppress(LinkError):
@@ -385,6 +392,7 @@ class Daemon:
             "control": self.server.status() if self.server is not None else {},
             "events": self.bus.status(),
             "metrics": self.metrics.status() if self.metrics is not None else None,
+            "notify": self.notifier.status() if self.notifier is not None else None,
             "connections": self.connections(),
         }
 

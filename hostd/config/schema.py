@@ -245,6 +245,16 @@ SCHEMA: dict[str, dict[str, Field]] = {
             "whole request within daemon.idle_timeout is closed); past it a new one gets "
             "503 and is closed.", 8, lo=1, hi=1024, integer=True),
     },
+    "notify": {
+        "command": Text(
+            "Shell command run when a job completes, fails or pauses, with the job's JSON "
+            "(as hostctl job --json shows it) on its standard input and HOSTD_JOB_ID, "
+            "HOSTD_JOB_STATE, HOSTD_JOB_NAME in its environment; empty: none. It runs as "
+            "hostd's user, under the unit's hardening (no network beyond loopback unless "
+            "allowed); a failure is logged as a warning.", ""),
+        "timeout": Number("Seconds notify.command may run before it is killed.", 30.0,
+                          lo=1, hi=3600),
+    },
     "sim": {
         "rx_buffer_bytes": Number("Emulated firmware receive buffer, bytes.", 127, lo=16,
                                   hi=65536, integer=True),

@@ -25,14 +25,14 @@ from hostd.errors import PrinterBusy, ShuttingDown
 from hostd.events import EventBus
 from hostd.jobs.active import Active
 from hostd.jobs.figures import JobFigures
-from hostd.jobs.file_check import FileChecker
+from hostd.jobs.file_check import FileChecker, GcodeSummary, MeshSummary
 from hostd.jobs.joblog import log
 from hostd.jobs.print_loop import PrintLoop, Readiness, load_program
 from hostd.jobs.progress import ProgressRecorder
 from hostd.jobs.queue import JobQueue
 from hostd.jobs.resume import resume_point, resume_scope
 from hostd.jobs.slice_loop import SliceLoop
-from hostd.jobs.spool import SUFFIX, Spool, Staged, upload_kind
+from hostd.jobs.spool import MESH_KINDS, SUFFIX, Spool, Staged, upload_kind
 from hostd.jobs.states import TERMINAL, JobState, JobStateError
 from hostd.jobs.store import Job, JobStore
 from hostd.printer.envelope import Envelope
@@ -49,7 +49,8 @@ class JobManager:
     def __init__(self, store: JobStore, spool: Spool, worker: SlicingWorker | None,
                  port_factory: Callable[[], Port], bus: EventBus,
                  settings: StreamSettings, envelope: Envelope | None = None,
-                 printer: Readiness | None = None, hold_after_print: bool = False) -> None:
+                 printer: Readiness | None = None, hold_after_print: bool = False,
+                 resends: Callable[[], int] | None = None) -> None:
         self.store = store
         self.spool = spool
         self.worker = worker
@@ -61,7 +62,7 @@ class JobManager:
         self.recorder = ProgressRecorder(self.queue)
         self.slicer = SliceLoop(self.queue, spool, worker, self.checker)
         self.printing = PrintLoop(self.queue, self.recorder, port_factory, settings,
-                                  self._load_program, printer)
+                                  self._load_program, printer, resends)
         self.recovered: list[int] = []
         self._tasks: list[asyncio.Task[None]] = []
         # the queue's wake-up and waiters, under the names the tests use
@@ -153,8 +154,10 @@ class JobManager:
 
     async def submit_staged(self, name: str, staged: Staged, kind: str | None = None) -> Job:
         """Queue an upload written to the spool's staging: checked whole in the worker
-        process, then stored under its digest. Afterwards the staged file is gone: stored, or
-        on any error discarded."""
+        process, then stored under its digest (a part sent as 3MF or OBJ as the binary STL
+        the check made of it). Afterwards the staged file is gone: stored, or on any error
+        discarded."""
+        converted: Path | None = None
         try:
             if self.queue.stopping:
                 raise ShuttingDown("the daemon is shutting down")
@@ -162,18 +165,31 @@ class JobManager:
             self.spool.check_size(staged.size, name)
             await asyncio.to_thread(staged.finish)  # on disk before the worker reads it
             summary = await self.checker.check(staged.path, kind, name)
-            sha = await asyncio.to_thread(self.spool.commit, staged, SUFFIX[kind])
+            if isinstance(summary, MeshSummary) and summary.converted is not None:
+                converted = Path(summary.converted)
+                sha = await asyncio.to_thread(self.spool.adopt, converted, SUFFIX["stl"])
+            else:
+                sha = await asyncio.to_thread(self.spool.commit, staged,
+                                              SUFFIX["stl" if kind in MESH_KINDS else kind])
         finally:
             staged.discard()
-        estimate, total = (summary.estimate, summary.total) if summary else ({}, 0)
-        job = self.store.add(Path(name).name[:200] or "upload", kind, sha,
-                             gcode_sha=sha if kind == "gcode" else None, estimate=estimate)
+            if converted is not None:
+                converted.unlink(missing_ok=True)
+        return self._queued(name, sha, summary)
+
+    def _queued(self, name: str, sha: str, summary: GcodeSummary | MeshSummary) -> Job:
+        """A checked upload stored as ``sha``, now a queued job (a G-code one ready)."""
+        gcode = summary if isinstance(summary, GcodeSummary) else None
+        job = self.store.add(Path(name).name[:200] or "upload", "stl" if gcode is None
+                             else "gcode", sha, gcode_sha=None if gcode is None else sha,
+                             estimate={} if gcode is None else gcode.estimate)
         self.queue.added(job)
-        if kind == "gcode":
-            self.store.update(job.id, total_lines=total)
+        if isinstance(summary, GcodeSummary):
+            self.store.update(job.id, total_lines=summary.total)
             self.queue.set_state(job.id, JobState.READY, "g-code upload")
             self.queue.wake_print.set()
         else:
+            self.store.update(job.id, info={"format": summary.format})
             self.queue.wake_slice.set()
         return self.store.get(job.id)
 
@@ -324,6 +340,7 @@ class JobManager:
                 "latest": None if latest is None else latest.status(),
                 "recovered": list(self.recovered), "db_checkpoints": self.recorder.checkpoints,
                 "waiting_for_printer": self.printing.waiting_for_printer,
+                "slicing": self.slicer.progress,
                 "queue": self.queue.queue_status(),
                 "file_checks": self.checker.status()}
 

@@ -16,19 +16,11 @@ from typing import Any
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "daemon"))
-from hostd_harness import DaemonProc, make_gcode
+from hostd_harness import DaemonProc, hostctl, make_gcode
 
 from hostd.cli.cmd_control import PART_BYTES
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-async def hostctl(sock: Path, *args: str) -> tuple[int, str, str]:
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "hostd.cli.main", "--socket", str(sock), *args,
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=str(ROOT))
-    out, err = await proc.communicate()
-    return proc.returncode or 0, out.decode(), err.decode()
 
 
 @pytest.mark.asyncio

@@ -73,6 +73,15 @@ async def scrape(port: int, accept: str = "text/plain") -> str:
     return body.decode()
 
 
+async def hostctl(sock: str | Path, *args: str) -> tuple[int, str, str]:
+    """``hostctl --socket SOCK ARGS...``: its exit code, stdout and stderr."""
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "hostd.cli.main", "--socket", str(sock), *args,
+        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=str(ROOT))
+    out, err = await proc.communicate()
+    return proc.returncode or 0, out.decode(), err.decode()
+
+
 class Rpc:
     """An asyncio JSON-RPC client on the control socket."""
 
