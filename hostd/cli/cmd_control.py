@@ -146,7 +146,8 @@ def cmd_print(args: argparse.Namespace) -> int:
             data = path.read_bytes()
         except OSError as exc:
             raise CliError(f"{path}: {exc.strerror or exc}", EXIT_USAGE) from None
-        c.call("events.subscribe", events=list(WAIT_EVENTS if args.wait else SLICE_EVENTS))
+        if args.wait or _is_part(path, args.kind):  # events to follow: subscribed first
+            c.call("events.subscribe", events=list(WAIT_EVENTS if args.wait else SLICE_EVENTS))
         job = _submit(c, path.name, data, None if args.json else _upload_progress(path.name),
                       kind=args.kind)
         if not args.wait:
@@ -172,6 +173,14 @@ WAIT_EVENTS = (*SLICE_EVENTS, "job.progress", "job.subpart", "subpart_started",
 """What ``print --wait`` follows."""
 SLICED = frozenset({"ready", "printing", "paused", "completed"})
 """States a job is in once its slice has succeeded."""
+
+
+PART_SUFFIXES = frozenset({".stl", ".3mf", ".obj"})
+
+
+def _is_part(path: Path, kind: str | None) -> bool:
+    """Whether the file is a part the daemon slices (its slice is waited for)."""
+    return kind != "gcode" if kind is not None else path.suffix.lower() in PART_SUFFIXES
 
 
 def _submitted(c: Client, job: dict[str, Any], as_json: bool) -> int:

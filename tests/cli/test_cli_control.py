@@ -272,7 +272,8 @@ async def test_print_wait_says_when_the_hold_starts_after_the_job_was_queued(tmp
     assert rc == 0, err
     lines = out.splitlines()
     held = [i for i, line in enumerate(lines) if line.startswith("queue held: job 1 completed")]
-    assert held and lines[-1].startswith("job 2 completed")
+    assert held and lines[-2].startswith("job 2 completed")
+    assert lines[-1].startswith("summary: ")  # the end-of-job summary (issue 36)
 
 
 @contextlib.asynccontextmanager
