@@ -131,6 +131,7 @@ class Daemon:
         self._tasks: list[asyncio.Task[None]] = []
         self._jobs: JobManager | None = None
         self.notifier: Notifier | None = None
+        self.http: Any = None
         self._status_line = ""
         self._status_json: tuple[Encoded, float, int] | None = None  # (text, when, events)
         self._lock = StateLock(self.state_dir)
@@ -171,6 +172,7 @@ class Daemon:
             await self.server.start(_activated_socket())
         except ControlError as exc:
             raise DaemonError(str(exc)) from None
+        await self._start_http()
         connected = await self._connect_link()
         self.jobs.start()
         self._start_metrics()
@@ -258,6 +260,27 @@ class Daemon:
         if line != self._status_line:
             self._status_line = line
             notify("STATUS=" + line)
+
+    async def _start_http(self) -> None:
+        """The HTTP and WebSocket API (``http.enabled``), on the control socket's registry
+        and limits; a port in use is fatal, as for the metrics."""
+        if not self.config["http.enabled"]:
+            return
+        from hostd.api_keys import KeyRing
+        from hostd.control import slicer_uploads
+        from hostd.control.http_api import HttpApi, HttpError
+
+        assert self.server is not None
+        self.http = HttpApi(self, self.server.registry, self.bus, self.limits,
+                            KeyRing(self.config["http.api_key_file"]),
+                            self.config["http.host"], self.config["http.port"],
+                            int(self.config["http.max_upload_mb"]) << 20,
+                            (slicer_uploads.add_routes,))
+        try:
+            await self.http.start()
+        except HttpError as exc:
+            self.http = None
+            raise DaemonError(f"{exc} (http.port)") from None
 
     def _start_metrics(self) -> None:
         if not self.config["metrics.enabled"]:
@@ -355,6 +378,8 @@ class Daemon:
             await self._jobs.stop("daemon stopped (SIGTERM)")
         if self.notifier is not None:
             await self.notifier.close()
+        if self.http is not None:
+            await self.http.close()
         if self.server is not None:
             await self.server.close()
         with contextlib.suppress(LinkError):
@@ -393,6 +418,7 @@ class Daemon:
             "events": self.bus.status(),
             "metrics": self.metrics.status() if self.metrics is not None else None,
             "notify": self.notifier.status() if self.notifier is not None else None,
+            "http": self.http.status() if self.http is not None else None,
             "connections": self.connections(),
         }
 

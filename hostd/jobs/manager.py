@@ -261,9 +261,10 @@ class JobManager:
         """The operator cleared the platform: the next ready job may start."""
         return self.queue.queue_start()
 
-    def queue_hold(self) -> dict[str, Any]:
-        """No new job starts until :meth:`queue_start` (the job printing goes on)."""
-        return self.queue.queue_hold()
+    def queue_hold(self, reason: str = "held by the operator") -> dict[str, Any]:
+        """No new job starts until :meth:`queue_start` (the job printing goes on); an
+        earlier hold's reason stays."""
+        return self.queue.queue_hold(reason)
 
     def queue_status(self) -> dict[str, Any]:
         return self.queue.queue_status()

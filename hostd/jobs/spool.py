@@ -69,6 +69,10 @@ class Staged:
         self._sha.update(data)
         self.size += len(data)
 
+    def digest(self) -> str:
+        """The sha256 hex digest of what was written so far."""
+        return self._sha.hexdigest()
+
     def finish(self) -> str:
         """Flush the file to disk and close it; the sha256 hex digest of what was written."""
         if self._fh is not None:
