@@ -267,7 +267,7 @@ class Daemon:
         if not self.config["http.enabled"]:
             return
         from hostd.api_keys import KeyRing
-        from hostd.control import slicer_uploads
+        from hostd.control import slicer_uploads, web_page
         from hostd.control.http_api import HttpApi, HttpError
 
         assert self.server is not None
@@ -275,7 +275,7 @@ class Daemon:
                             KeyRing(self.config["http.api_key_file"]),
                             self.config["http.host"], self.config["http.port"],
                             int(self.config["http.max_upload_mb"]) << 20,
-                            (slicer_uploads.add_routes,))
+                            (slicer_uploads.add_routes, web_page.add_routes))
         try:
             await self.http.start()
         except HttpError as exc:

@@ -152,7 +152,7 @@ def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str,
     tmp = f"{out_path}.{os.getpid()}.tmp"
     try:
         result = slice_model(stl_path, progress=progress_sender(progress_path),
-                             **convert.slice_inputs(cfg))
+                             keep_plan=True, **convert.slice_inputs(cfg))
         write_gcode(tmp, result.lines)
     except Exception as exc:  # the slicer's own errors, reported as one line to the operator
         Path(tmp).unlink(missing_ok=True)
@@ -161,7 +161,39 @@ def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str,
             text = text.replace(stl_path, name).replace(Path(stl_path).name, name)
         raise SliceError(text) from None
     os.replace(tmp, out_path)
-    return _summary(result)
+    return {**_summary(result), "pictures": draw_pictures(result.plan, out_path)}
+
+
+PICTURES = ("decomposition", "toolpaths")
+"""The pictures of a sliced job: its sub-parts with their cut planes and build order, and
+its toolpaths by sub-part."""
+
+
+def picture_path(gcode_path: str | Path, which: str) -> Path:
+    """Where the picture ``which`` of the sliced G-code at ``gcode_path`` is kept."""
+    return Path(gcode_path).with_suffix(f".{which}.png")
+
+
+def draw_pictures(plan: Any, out_path: str) -> list[str]:
+    """In the worker: the pictures of ``plan`` next to its G-code (:func:`picture_path`),
+    the names of those drawn. A picture that cannot be drawn is left out (logged), never a
+    failed slice."""
+    from slicer.preview import render_preview, render_toolpaths
+
+    drawn = []
+    for which in PICTURES:
+        try:
+            if which == "toolpaths":
+                render_toolpaths(plan, picture_path(out_path, which))
+            elif plan.decomposition is not None:
+                render_preview(plan.decomposition, picture_path(out_path, which))
+            else:
+                continue
+        except Exception as exc:  # matplotlib's, or a plan it cannot draw
+            log.warning("picture %s of %s not drawn: %s", which, out_path, exc)
+            continue
+        drawn.append(which)
+    return drawn
 
 
 def _summary(result: Any) -> dict[str, Any]:

@@ -247,9 +247,9 @@ SCHEMA: dict[str, dict[str, Field]] = {
     },
     "http": {
         "enabled": Flag("Serve the HTTP and WebSocket API (JSON-RPC at /websocket, uploads, "
-                        "the slicers' OctoPrint and Moonraker upload endpoints). Every "
-                        "request needs a key of http.api_key_file, but GET /api/version.",
-                        False),
+                        "the slicers' OctoPrint and Moonraker upload endpoints, the web "
+                        "page at /). Every request needs a key of http.api_key_file, but "
+                        "GET /api/version.", False),
         "host": Text("HTTP listen address (loopback by default). Beyond loopback the unit "
                      "needs the clients' addresses allowed (IPAddressAllow= in a drop-in) "
                      "and a TLS reverse proxy should front it (README: Security).",

@@ -31,7 +31,7 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from typing import Any
 
-from aiohttp import BodyPartReader, WSMsgType, web
+from aiohttp import BodyPartReader, WSCloseCode, WSMsgType, web
 
 from hostd import __version__
 from hostd.api_keys import KeyRing
@@ -186,13 +186,26 @@ class _Conn(asyncio.Protocol):
         self.inner.connection_made(transport)
 
     def data_received(self, data: bytes) -> None:
+        """A WebSocket's bytes count against the byte budget until their message is taken
+        up (an upload's go to the spool as they come, and count against nothing)."""
+        budget = self.api.limits.budget
+        if self.socket is not None and not budget.take(self, len(data)):
+            self.over_budget(f"{budget.held.get(self, 0) + len(data)} bytes of unfinished "
+                             f"messages, the most when daemon.max_buffered_bytes "
+                             f"({budget.cap}) ran out")
+            return
         self.inner.data_received(data)
+
+    def over_budget(self, reason: str) -> None:
+        self.api.limits.budget.give(self)
+        self._close("budget", reason)
 
     def eof_received(self) -> bool | None:
         return self.inner.eof_received()
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.inner.connection_lost(exc)
+        self.api.limits.budget.give(self)
         self.ticket.release()
         if self.idle is not None:
             self.idle.cancel()
@@ -223,7 +236,9 @@ class _Conn(asyncio.Protocol):
             self.transport.abort()
 
     def began(self) -> float:
-        """A request starts: how long the connection rested before it."""
+        """A request starts: how long the connection rested before it (its bytes are no
+        longer held for it)."""
+        self.api.limits.budget.give(self)
         self.ticket.proven = True
         self.requests += 1
         assert self.idle is not None
@@ -249,6 +264,7 @@ class WsClient:
         self.outbox = api.limits.outbox(self._hand)
         self._ready: asyncio.Queue[bytes] = asyncio.Queue()
         self.dropped = False
+        self.closing: asyncio.Task[bool] | None = None
         self.task = asyncio.get_running_loop().create_task(self._send())
 
     def _hand(self, data: bytes) -> None:
@@ -274,8 +290,8 @@ class WsClient:
             self.dropped = self.client.dropped = True
             self.api.limits.drop("slow_reader", f"WebSocket client {self.client.id}",
                                  "not reading its events")
-            asyncio.get_running_loop().create_task(self.ws.close(code=1008,
-                                                                 message=b"events not read"))
+            self.closing = asyncio.get_running_loop().create_task(
+                self.ws.close(code=WSCloseCode.POLICY_VIOLATION, message=b"events not read"))
 
     async def close(self) -> None:
         self.task.cancel()
@@ -458,7 +474,7 @@ class HttpApi:
 
     def _ws_error(self, sock: WsClient, exc: BaseException | None) -> None:
         limit = self.limits.settings.max_request_bytes
-        if exc is not None and "1009" in str(getattr(exc, "code", "")) + str(exc):
+        if getattr(exc, "code", None) == WSCloseCode.MESSAGE_TOO_BIG:
             self.limits.drop("too_large", f"WebSocket client {sock.client.id}",
                              f"a message over {limit} bytes (daemon.max_request_bytes)")
 

@@ -16,6 +16,7 @@ The face of the job domain to the daemon and its control endpoints, over its par
 from __future__ import annotations
 
 import asyncio
+import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -40,7 +41,10 @@ from hostd.printer.modal import ModalState
 from hostd.printer.program import Program
 from hostd.printer.settings import StreamSettings
 from hostd.printer.streamer import Port, Streamer
-from hostd.slicing_worker import SlicingWorker
+from hostd.slicing_worker import PICTURES, SlicingWorker, picture_path
+
+CACHE_KEY = re.compile(r"[0-9a-f]{64}-[0-9a-f]{32}")
+"""A slice cache entry's name (:func:`hostd.slicing_worker.cache_key`)."""
 
 
 class JobManager:
@@ -325,6 +329,18 @@ class JobManager:
         out["history"] = self.store.history(job.id)
         out["checkpoints"] = [c.to_dict() for c in self.store.checkpoints(job.id)]
         return out
+
+    def picture(self, job_id: int, which: str) -> Path | None:
+        """The file of a sliced job's picture ``which`` (:data:`PICTURES`), or ``None``
+        when it has none (a G-code upload, a slice older than the pictures)."""
+        info = self.store.get(job_id).info
+        key = info.get("cache_key")
+        if (self.worker is None or which not in PICTURES or which not in
+                (info.get("pictures") or ()) or not isinstance(key, str)
+                or not CACHE_KEY.fullmatch(key)):
+            return None
+        path = picture_path(self.worker.cache.gcode_path(key), which)
+        return path if path.is_file() else None
 
     def status(self) -> dict[str, Any]:
         """A read-only snapshot from memory (no database access).

@@ -76,7 +76,8 @@ class SliceLoop:
         if queue.state_of(job.id) is not JobState.SLICING:
             return  # cancelled or deleted meanwhile
         info = {**job.info, **outcome.info, "slice_s": round(outcome.duration_s, 3),
-                "cache_hit": outcome.cache_hit, "subparts": summary.subparts,
+                "cache_hit": outcome.cache_hit, "cache_key": outcome.gcode_path.stem,
+                "subparts": summary.subparts,
                 "layers": summary.layers, "transitions": summary.transitions}
         queue.store.update(job.id, gcode_sha=sha, total_lines=summary.total,
                            estimate=summary.estimate, info=info)

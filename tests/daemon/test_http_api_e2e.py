@@ -98,6 +98,68 @@ async def test_the_websocket_serves_the_sockets_methods_and_events_and_prints_a_
     assert not d.loop_errors()
 
 
+async def test_a_websocket_message_over_the_request_limit_closes_it_as_too_big(tmp_path):
+    d, url, key = http_daemon(tmp_path, daemon__max_request_bytes=393216)
+    async with asyncio.timeout(60):
+        await d.start()
+        try:
+            async with aiohttp.ClientSession() as http:
+                async with http.ws_connect(f"{url}/websocket?apikey={key}") as ws:
+                    await ws.send_str("[" + " " * 400_000 + "]")
+                    closed = await ws.receive()
+                    assert closed.type in (aiohttp.WSMsgType.CLOSE, aiohttp.WSMsgType.CLOSED)
+                    assert ws.close_code == aiohttp.WSCloseCode.MESSAGE_TOO_BIG
+        finally:
+            await d.stop()
+    assert any("dropped: a message over 393216 bytes" in line for line in d.stderr)
+
+
+async def raw_websocket(port: int, key: str) -> tuple[asyncio.StreamReader,
+                                                      asyncio.StreamWriter]:
+    """A WebSocket opened by hand (its frames are written by the test)."""
+    reader, writer = await asyncio.open_connection("127.0.0.1", port)
+    writer.write(f"GET /websocket?apikey={key} HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\n"
+                 "Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+                 "Sec-WebSocket-Version: 13\r\n\r\n".encode())
+    assert (await reader.readuntil(b"\r\n\r\n")).startswith(b"HTTP/1.1 101")
+    return reader, writer
+
+
+def text_frame_head(length: int) -> bytes:
+    """A client's text frame of ``length`` bytes: 64-bit length, mask key 0 (the payload
+    goes as it is)."""
+    return bytes([0x81, 0x80 | 127]) + length.to_bytes(8, "big") + bytes(4)
+
+
+async def test_unfinished_websocket_messages_count_against_the_byte_budget(tmp_path):
+    """The connection holding the most unfinished bytes is dropped when the budget across
+    connections runs out (as on the control socket), not the one that comes next."""
+    d, url, key = http_daemon(tmp_path, daemon__max_request_bytes=393216,
+                              daemon__max_buffered_bytes=393216)
+    port = int(url.rsplit(":", 1)[1])
+    async with asyncio.timeout(60):
+        await d.start()
+        try:
+            big_r, big_w = await raw_websocket(port, key)
+            big_w.write(text_frame_head(300_000) + b" " * 250_000)
+            await big_w.drain()
+            small_r, small_w = await raw_websocket(port, key)
+            small_w.write(text_frame_head(300_000))
+            for _ in range(4):  # past the budget, while it holds less than the other
+                small_w.write(b" " * 50_000)
+                await small_w.drain()
+            assert await big_r.read() == b""  # dropped, holding the most
+            small_w.write(b" " * 100_000)  # the rest of its message: blanks are no JSON
+            reply = await small_r.read(200)
+            big_w.close()
+            small_w.close()
+        finally:
+            await d.stop()
+    assert b"parse error" in reply
+    assert any("HTTP client dropped: " in line and "bytes of unfinished requests, the most "
+               "when the daemon.max_buffered_bytes (393216)" in line for line in d.stderr)
+
+
 async def test_every_request_needs_a_key_but_the_version(tmp_path):
     d, url, key = http_daemon(tmp_path)
     async with asyncio.timeout(60):
