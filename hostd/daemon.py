@@ -37,6 +37,7 @@ from hostd.control.server import ControlError, ControlServer
 from hostd.errors import PrinterBusy
 from hostd.events import EventBus
 from hostd.jobs.manager import JobManager
+from hostd.jobs.notify import Notifier
 from hostd.jobs.spool import Spool
 from hostd.jobs.store import JobStore, StoreError
 from hostd.link.errors import LinkError
@@ -132,6 +133,8 @@ class Daemon:
         self.metrics: Any = None
         self._tasks: list[asyncio.Task[None]] = []
         self._jobs: JobManager | None = None
+        self.notifier: Notifier | None = None
+        self.http: Any = None
         self._status_line = ""
         self._status_json: tuple[Encoded, float, int] | None = None  # (text, when, events)
         self._lock = StateLock(self.state_dir)
@@ -164,7 +167,8 @@ class Daemon:
         self._jobs = JobManager(self.store, spool, self.worker, lambda: LinkPort(self.link),
                                 self.bus, stream_settings_from_config(self.config),
                                 envelope_from_config(self.config.data), printer=self.link,
-                                hold_after_print=self.config["daemon.next_job"] == "after_clear")
+                                hold_after_print=self.config["daemon.next_job"] == "after_clear",
+                                resends=lambda: self.link.protocol.counters.lines_resent)
         self.jobs.recover()  # before the socket opens: no client sees a dead job printing
         self.server = ControlServer(self.config["daemon.socket"], build_registry(self),
                                     self.bus, self.limits)
@@ -172,12 +176,15 @@ class Daemon:
             await self.server.start(_activated_socket())
         except ControlError as exc:
             raise DaemonError(str(exc)) from None
+        await self._start_http()
         connected = await self._connect_link()
         self.jobs.start()
         self._start_metrics()
         self._tasks.append(asyncio.create_task(self._temperature_monitor(), name="temps"))
         if not connected:
             self._tasks.append(asyncio.create_task(self._link_supervisor(), name="link"))
+        self.notifier = Notifier(self.bus, self.config["notify.command"], self.jobs.job_detail,
+                                 self.config["notify.timeout"])
         self.bus.subscribe(lambda name, data: self._notify_status(),
                            ("job.state", "printer.state"))
         gc.freeze()  # what starting made lives on: later collections need not walk it
@@ -257,6 +264,27 @@ class Daemon:
         if line != self._status_line:
             self._status_line = line
             notify("STATUS=" + line)
+
+    async def _start_http(self) -> None:
+        """The HTTP and WebSocket API (``http.enabled``), on the control socket's registry
+        and limits; a port in use is fatal, as for the metrics."""
+        if not self.config["http.enabled"]:
+            return
+        from hostd.api_keys import KeyRing
+        from hostd.control import slicer_uploads, web_page
+        from hostd.control.http_api import HttpApi, HttpError
+
+        assert self.server is not None
+        self.http = HttpApi(self, self.server.registry, self.bus, self.limits,
+                            KeyRing(self.config["http.api_key_file"]),
+                            self.config["http.host"], self.config["http.port"],
+                            int(self.config["http.max_upload_mb"]) << 20,
+                            (slicer_uploads.add_routes, web_page.add_routes))
+        try:
+            await self.http.start()
+        except HttpError as exc:
+            self.http = None
+            raise DaemonError(f"{exc} (http.port)") from None
 
     def _start_metrics(self) -> None:
         if not self.config["metrics.enabled"]:
@@ -352,6 +380,10 @@ class Daemon:
         await asyncio.gather(*self._tasks, return_exceptions=True)
         if self._jobs is not None:  # first, so that clients get the job's last state
             await self._jobs.stop("daemon stopped (SIGTERM)")
+        if self.notifier is not None:
+            await self.notifier.close()
+        if self.http is not None:
+            await self.http.close()
         if self.server is not None:
             await self.server.close()
         with contextlib.suppress(LinkError):
@@ -389,6 +421,8 @@ class Daemon:
             "control": self.server.status() if self.server is not None else {},
             "events": self.bus.status(),
             "metrics": self.metrics.status() if self.metrics is not None else None,
+            "notify": self.notifier.status() if self.notifier is not None else None,
+            "http": self.http.status() if self.http is not None else None,
             "connections": self.connections(),
         }
 

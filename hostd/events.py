@@ -19,6 +19,7 @@ Handler = Callable[[str, dict[str, Any]], None]
 EVENT_NAMES = (
     "job.state",         # {"job": {...}, "old": str, "new": str, "reason": str}
     "job.progress",      # {"job_id", "acked", "total", "progress", "subpart", "layer", "eta_s"}
+    "job.slicing",       # {"job_id", "name", "stage", "percent"}: a slice's stage started
     "job.subpart",       # {"job_id", "subpart", "layer"}: the sub-part being printed changed
     "subpart_started",   # {"job_id", "subpart", "parent", "a", "c", "line"}: a transition passed
     "transition_failed",  # {"job_id", "subpart", "reason", "expected", "measured"}

@@ -86,5 +86,6 @@ class SliceCache:
         return info
 
     def remove(self, key: str) -> None:
-        for path in (self._meta_path(key), self.gcode_path(key)):
+        for path in (self._meta_path(key), self.gcode_path(key),
+                     *self.root.glob(f"{key}.*.png")):
             path.unlink(missing_ok=True)

@@ -10,12 +10,16 @@ wrote.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import json
 import logging
 import os
+import shutil
+import socket
+import tempfile
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -100,8 +104,63 @@ def code_digest() -> str:
     return digest.hexdigest()
 
 
+OnProgress = Callable[[str, float], None]
+"""``on_progress(stage, percent)`` of a slice (:data:`slicer.pipeline.STAGES`)."""
+PROGRESS_BYTES = 512
+"""Largest progress datagram read."""
+
+
+class ProgressListener:
+    """Where the worker tells a slice's stages: a Unix datagram socket in a directory of the
+    daemon's own (mode 0700), read on the event loop as datagrams arrive."""
+
+    def __init__(self, on_progress: OnProgress) -> None:
+        self.on_progress = on_progress
+        self._dir = tempfile.mkdtemp(prefix="hostd-slice-")
+        self.path = os.path.join(self._dir, "progress")
+        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self._sock.bind(self.path)
+        self._sock.setblocking(False)
+        self._loop = asyncio.get_running_loop()
+        self._loop.add_reader(self._sock.fileno(), self._read)
+
+    def _read(self) -> None:
+        while True:
+            try:
+                data = self._sock.recv(PROGRESS_BYTES)
+            except OSError:  # BlockingIOError: nothing more now
+                return
+            try:
+                msg = json.loads(data)
+                stage, percent = str(msg["stage"]), float(msg["percent"])
+            except (ValueError, KeyError, TypeError):
+                continue
+            self.on_progress(stage, percent)
+
+    def close(self) -> None:
+        self._loop.remove_reader(self._sock.fileno())
+        self._sock.close()
+        shutil.rmtree(self._dir, ignore_errors=True)
+
+
+def progress_sender(path: str | None) -> OnProgress | None:
+    """In the worker: a function that sends each stage to the listener at ``path`` (lost,
+    never waited for, when the daemon does not read)."""
+    if path is None:
+        return None
+    sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    sock.setblocking(False)
+
+    def send(stage: str, percent: float) -> None:
+        with contextlib.suppress(OSError):
+            sock.sendto(json.dumps({"stage": stage, "percent": percent}).encode(), path)
+
+    return send
+
+
 def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str,
-                    name: str | None = None, allow_overhang: bool = False) -> dict[str, Any]:
+                    name: str | None = None, allow_overhang: bool = False,
+                    progress_path: str | None = None) -> dict[str, Any]:
     """Runs in the worker process: slice ``stl_path`` with config ``values`` to ``out_path``.
 
     An error is one line naming the upload as ``name`` (the operator's file name), not the
@@ -109,7 +168,8 @@ def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str,
     ``allow_overhang``; a refusal's advice names ``hostctl print``'s options.
 
     The G-code is written to a temporary name and renamed, so a crash never leaves a partial
-    file under the cache key.
+    file under the cache key. Each stage is sent to the :class:`ProgressListener` at
+    ``progress_path`` as it starts.
     """
     from hostd.config import convert
     from hostd.config.loader import Config
@@ -121,6 +181,7 @@ def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str,
     tmp = f"{out_path}.{os.getpid()}.tmp"
     try:
         result = slice_model(stl_path, allow_overhang=allow_overhang, knobs=PRINT_OPTIONS,
+                             progress=progress_sender(progress_path), keep_plan=True,
                              **convert.slice_inputs(cfg))
         write_gcode(tmp, result.lines)
     except Exception as exc:  # the slicer's own errors, reported as one line to the operator
@@ -132,7 +193,39 @@ def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str,
                 text = f"{name}: {text}"
         raise SliceError(text) from None
     os.replace(tmp, out_path)
-    return _summary(result)
+    return {**_summary(result), "pictures": draw_pictures(result.plan, out_path)}
+
+
+PICTURES = ("decomposition", "toolpaths")
+"""The pictures of a sliced job: its sub-parts with their cut planes and build order, and
+its toolpaths by sub-part."""
+
+
+def picture_path(gcode_path: str | Path, which: str) -> Path:
+    """Where the picture ``which`` of the sliced G-code at ``gcode_path`` is kept."""
+    return Path(gcode_path).with_suffix(f".{which}.png")
+
+
+def draw_pictures(plan: Any, out_path: str) -> list[str]:
+    """In the worker: the pictures of ``plan`` next to its G-code (:func:`picture_path`),
+    the names of those drawn. A picture that cannot be drawn is left out (logged), never a
+    failed slice."""
+    from slicer.preview import render_preview, render_toolpaths
+
+    drawn = []
+    for which in PICTURES:
+        try:
+            if which == "toolpaths":
+                render_toolpaths(plan, picture_path(out_path, which))
+            elif plan.decomposition is not None:
+                render_preview(plan.decomposition, picture_path(out_path, which))
+            else:
+                continue
+        except Exception as exc:  # matplotlib's, or a plan it cannot draw
+            log.warning("picture %s of %s not drawn: %s", which, out_path, exc)
+            continue
+        drawn.append(which)
+    return drawn
 
 
 def _summary(result: Any) -> dict[str, Any]:
@@ -189,10 +282,11 @@ class SlicingWorker:
         self._running = False  # a slice runs in the worker process (not a cache look-up)
 
     async def slice(self, stl_path: Path, stl_sha: str, name: str | None = None,
-                    options: SliceOptions | None = None) -> SliceOutcome:
+                    options: SliceOptions | None = None,
+                    on_progress: OnProgress | None = None) -> SliceOutcome:
         """The G-code of the STL at ``stl_path`` (its sha256 ``stl_sha``) sliced as
-        ``options`` ask, from the cache or sliced in the worker; :class:`SliceError` naming
-        the upload ``name``."""
+        ``options`` ask, from the cache or sliced in the worker (each stage told to
+        ``on_progress``); :class:`SliceError` naming the upload ``name``."""
         options = options or SliceOptions()
         key = cache_key(stl_sha, options.cache_profile(self.values), self.code)
         out = self.cache.gcode_path(key)
@@ -207,9 +301,7 @@ class SlicingWorker:
                 raise SliceError(CANCELLED)
             started = time.monotonic()
             self._running = True
-            info = await self.process.run(slice_in_worker, str(stl_path),
-                                          options.config_values(self.values), str(out), name,
-                                          options.allow_overhang)
+            info = await self._run(stl_path, out, name, options, on_progress)
         except WorkerDied:
             for tmp in out.parent.glob(f"{out.name}.*.tmp"):  # the dead worker's partial file
                 tmp.unlink(missing_ok=True)
@@ -233,6 +325,24 @@ class SlicingWorker:
             self.failures += 1
             raise SliceError(f"cannot keep the sliced G-code: {exc.strerror or exc}") from None
         return SliceOutcome(out, False, duration, info)
+
+    async def _run(self, stl_path: Path, out: Path, name: str | None, options: SliceOptions,
+                   on_progress: OnProgress | None) -> dict[str, Any]:
+        """:func:`slice_in_worker` in the worker, its stages told to ``on_progress``."""
+        listener = None
+        if on_progress is not None:
+            try:
+                listener = ProgressListener(on_progress)
+            except OSError as exc:  # no progress is no reason not to slice
+                log.warning("slice progress: %s", exc)
+        try:
+            return await self.process.run(slice_in_worker, str(stl_path),
+                                          options.config_values(self.values), str(out), name,
+                                          options.allow_overhang,
+                                          None if listener is None else listener.path)
+        finally:
+            if listener is not None:
+                listener.close()
 
     def cancel(self) -> bool:
         """Stop the slice running now (its job was cancelled): the worker is ended and the

@@ -51,6 +51,18 @@ T = TypeVar("T")
 log = logging.getLogger(__name__)
 
 REPAIR_ROUNDS = 3  # plans again, leaning, with hints from the replay (the closed loop)
+Progress = Callable[[str, float], None]
+"""``progress(stage, percent)``: a slice's stage as it starts, and how far the whole is."""
+STAGES = (("reading the part", 0.0), ("decomposing and planning", 5.0),
+          ("writing G-code", 55.0), ("replay check", 65.0), ("repair", 90.0),
+          ("done", 100.0))
+"""The stages :func:`slice_model` reports, with the share of a typical slice done before
+each (the plan and the replay take most of it: ``bench/slice.py``)."""
+_PERCENT = dict(STAGES)
+
+
+def _no_progress(stage: str, percent: float) -> None:
+    """A :data:`Progress` that tells no one."""
 
 
 class SliceError(ValueError):
@@ -206,7 +218,8 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
                 planar: bool = False, build_volume: np.ndarray | None = None,
                 check: bool = True, keep_plan: bool = False,
                 travel: ArrayLike = envelope.DEFAULT_TRAVEL, allow_overhang: bool = False,
-                knobs: Knobs | None = None, repair_rounds: int | None = None) -> SliceResult:
+                knobs: Knobs | None = None, repair_rounds: int | None = None,
+                progress: Progress | None = None) -> SliceResult:
     """Slice a part to checked G-code.
 
     Parameters
@@ -232,6 +245,8 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
     repair_rounds : int, optional
         Leaning tries of the closed loop at most (default :data:`REPAIR_ROUNDS`; 0: the
         paper's upright root only).
+    progress : callable, optional
+        Told each stage of :data:`STAGES` as it starts (``progress(stage, percent)``).
 
     Raises
     ------
@@ -244,7 +259,9 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
     t0 = time.perf_counter()
     head = head or Printhead.default()
     timings: dict[str, float] = {}
+    report = _reporter(progress)
     with small_pages(), ThreadPoolExecutor(1, "replay-index") as early:
+        report("reading the part")
         mesh, placement = _load(mesh_or_path, settings.nozzle_diameter, build_volume)
         name = _name(mesh_or_path)
         envelope.refuse(name, envelope.footprint_message(
@@ -254,6 +271,7 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         # while the decomposition and the layers (mostly one thread) are computed
         index = early.submit(model_index, mesh, settings.line_width) if check else None
         t1 = time.perf_counter()
+        report("decomposing and planning")
         plan = plan_model(mesh, placement.matrix, settings, geometry, head,
                           decompose_settings, planar, build_volume)
         timings["plan"] = time.perf_counter() - t1
@@ -270,6 +288,7 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         def again(hints: LeanHints) -> _Try:
             assert plan.decomposition is not None
             t2 = time.perf_counter()
+            report("repair")
             replanned = plan_print(plan.decomposition, settings, geometry, head, lean=LEAN,
                                    hints=hints)
             return _finish(mesh, replanned, settings, setup, index, {}, t2, keep_plan, name,
@@ -279,15 +298,30 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         leaned = 0
         try:
             first = _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name,
-                            seed, policy, judge=False)
+                            seed, policy, judge=False, stage=report)
         except OverhangError as exc:  # a layer in the air upright: leaning may hold it
             if retry is None:
                 raise
             first, leaned = _leaned_instead(exc, retry), 1
         best = _repaired(first, retry, timings, repair_rounds, done=leaned)
         result = _judged(best, seed, policy)
+        report("done")
         return replace(result, merged_shells=placement.merged_shells,
                        base_note=None if plan.base is None else plan.base.note)
+
+
+def _reporter(progress: Progress | None) -> Callable[[str], None]:
+    """``report(stage)``: ``progress`` told the stage and its percentage, each stage once
+    (the repair rounds run the later stages again)."""
+    told: set[str] = set()
+    tell = progress or _no_progress
+
+    def report(stage: str) -> None:
+        if stage not in told:
+            told.add(stage)
+            tell(stage, _PERCENT[stage])
+
+    return report
 
 
 def _turned(mesh: trimesh.Trimesh, base: BaseChoice, name: str,
@@ -440,7 +474,8 @@ def _judged(attempt: _Try, seed: int | None, policy: OverhangPolicy) -> SliceRes
 def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
             setup: MachineSetup, index: Future[ModelIndex] | None, timings: dict[str, float],
             t0: float, keep_plan: bool, name: str = "<mesh>", seed: int | None = None,
-            policy: OverhangPolicy = OverhangPolicy(), judge: bool = True) -> _Try:
+            policy: OverhangPolicy = OverhangPolicy(), judge: bool = True,
+            stage: Callable[[str], None] | None = None) -> _Try:
     """G-code for ``plan``, its envelope check and, when ``index`` is given, its replay check.
 
     ``seed`` is the decomposition's (``None`` for the planar control), for the advice of a
@@ -451,6 +486,8 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
     thread of their own meanwhile (mostly numpy: the replay loses little of the GIL to it).
     """
     t1 = time.perf_counter()
+    stage = stage or (lambda name: None)
+    stage("writing G-code")
     moves = draft(plan, settings, setup)
     check_envelope(moves, name)
     timings["gcode"] = time.perf_counter() - t1
@@ -461,6 +498,7 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
     else:
         with ThreadPoolExecutor(1, "gcode-text") as writer:
             text = writer.submit(_timed, moves.finish, timings, "text")
+            stage("replay check")
             report = _replayed(moves, mesh, setup, index, timings, seed, policy.knobs)
             warning = walls_verdict(report, plan, seed, policy) if judge else None
             res = text.result()

@@ -1,5 +1,5 @@
-"""hostctl verbs that talk to the daemon: print, status, jobs, pause, resume, cancel, send,
-estop, firmware-restart, watch.
+"""hostctl verbs that talk to the daemon: print, status, jobs, job, pause, resume, cancel,
+send, estop, firmware-restart, watch.
 
 Exit codes (see :mod:`hostd.cli.errors`): 0 ok, 1 the job failed/was cancelled/interrupted,
 2 bad arguments or input file, 3 daemon unreachable, 4 the daemon refused the request.
@@ -14,6 +14,7 @@ import re
 import shlex
 import stat
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -42,13 +43,15 @@ JOBS_SHOWN = 20
 
 
 def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    p = subparsers.add_parser("print", help="upload FILE (STL or G-code) and print it")
-    p.add_argument("file", help="the STL or G-code file to print")
+    p = subparsers.add_parser("print", help="upload FILE (STL, 3MF, OBJ or G-code) and print "
+                              "it")
+    p.add_argument("file", help="the STL, 3MF, OBJ or G-code file to print")
     p.add_argument("--wait", action="store_true", help="show progress until the job ends")
-    p.add_argument("--kind", choices=("stl", "gcode"),
-                   help="what FILE is, when its extension does not say (.stl, .gcode)")
+    p.add_argument("--kind", choices=("stl", "3mf", "obj", "gcode"),
+                   help="what FILE is, when its extension does not say (.stl, .3mf, .obj, "
+                        ".gcode)")
     add_decompose_options(p)
-    add_allow_overhang(p, "an STL: print it")
+    add_allow_overhang(p, "a part: print it")
     _json_flag(p, "the job (with --wait: as job.get gives it, once the job ended)")
     p.set_defaults(func=cmd_print)
 
@@ -61,6 +64,12 @@ def register(subparsers: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     p.add_argument("--limit", type=_count, default=JOBS_SHOWN, metavar="N",
                    help=f"show the newest N jobs (default {JOBS_SHOWN}; 0: all)")
     p.set_defaults(func=cmd_jobs)
+
+    p = subparsers.add_parser("job", help="one job whole: its figures, end-of-job summary "
+                              "and state history")
+    p.add_argument("id", type=int, help="job id")
+    _json_flag(p, "the job as job.get gives it (with history and checkpoints)")
+    p.set_defaults(func=cmd_job)
 
     for verb, helptext in (("pause", "pause the current job"),
                            ("cancel", "cancel a job (default: the current one)")):
@@ -141,31 +150,132 @@ def cmd_print(args: argparse.Namespace) -> int:
             data = path.read_bytes()
         except OSError as exc:
             raise CliError(f"{path}: {exc.strerror or exc}", EXIT_USAGE) from None
-        if args.wait:
-            c.call("events.subscribe", events=["job.state", "job.progress", "job.subpart",
-                                               "subpart_started", "transition_failed",
-                                               "queue.state"])
+        if args.wait or _is_part(path, args.kind):  # events to follow: subscribed first
+            c.call("events.subscribe", events=list(WAIT_EVENTS if args.wait else SLICE_EVENTS))
         job = _submit(c, path.name, data, None if args.json else _upload_progress(path.name),
                       kind=args.kind, options=options)
         if not args.wait:
-            if args.json:
-                _emit_json(job)
-            else:
-                print(f"job {job['id']} {job['state']}: {job['name']}")
-                _say_held(c)
-            return EXIT_OK
+            return _submitted(c, job, args.json)
         try:  # from here on the job exists: Ctrl-C leaves it printing, and says so
             if not args.json:
                 _say_held(c)
             final, reason = _follow(c, job, args.json)
             if args.json:
                 _emit_final(c, job["id"], final, reason)
+            else:
+                _show_end(c, job["id"], final, reason)
         except KeyboardInterrupt:
             raise CliError(f"interrupted: job {job['id']} goes on (hostctl watch follows it; "
                            f"hostctl cancel {job['id']} stops it)", EXIT_INTERRUPTED) from None
-    if final in ("failed", "cancelled"):  # the reason on stderr too (a refused slice's line)
-        raise CliError(f"job {job['id']} {final}: {reason}", EXIT_FAILED)
-    return EXIT_OK if final == "completed" else EXIT_FAILED
+    return EXIT_OK
+
+
+SLICE_EVENTS = ("job.state", "job.slicing")
+"""What ``print`` without ``--wait`` follows: the slice of a part, to its outcome."""
+WAIT_EVENTS = (*SLICE_EVENTS, "job.progress", "job.subpart", "subpart_started",
+               "transition_failed", "queue.state")
+"""What ``print --wait`` follows."""
+SLICED = frozenset({"ready", "printing", "paused", "completed"})
+"""States a job is in once its slice has succeeded."""
+
+
+PART_SUFFIXES = frozenset({".stl", ".3mf", ".obj"})
+
+
+def _is_part(path: Path, kind: str | None) -> bool:
+    """Whether the file is a part the daemon slices (its slice is waited for)."""
+    return kind != "gcode" if kind is not None else path.suffix.lower() in PART_SUFFIXES
+
+
+def _submitted(c: Client, job: dict[str, Any], as_json: bool) -> int:
+    """``print`` without ``--wait``: the job queued; a part's slice waited for, its stages
+    shown on a terminal, and a failed one an error (exit 1, its reason on stderr)."""
+    if job.get("kind") == "stl" and job["state"] in ("queued", "slicing"):
+        try:
+            job = {**job, **_await_slice(c, job)}
+        except KeyboardInterrupt:
+            raise CliError(f"interrupted: job {job['id']} is still queued (hostctl watch "
+                           f"follows it; hostctl cancel {job['id']} stops it)",
+                           EXIT_INTERRUPTED) from None
+    if job["state"] not in SLICED | {"queued", "slicing"}:
+        raise CliError(f"job {job['id']} {job['state']}: {job.get('reason') or ''}",
+                       EXIT_FAILED)
+    if as_json:
+        _emit_json(job)
+    else:
+        print(f"job {job['id']} {job['state']}: {job['name']}")
+        _say_held(c)
+    return EXIT_OK
+
+
+def _await_slice(c: Client, job: dict[str, Any]) -> dict[str, Any]:
+    """Follow ``job``'s slice until it has a result: ``{state, reason}`` then."""
+    show = SliceProgress(sys.stderr, str(job["name"]))
+    for event, data in c.events():
+        if data.get("job_id") != job["id"]:
+            continue
+        if event == "job.slicing":
+            show.update(data)
+        elif event == "job.state" and data["new"] not in ("queued", "slicing"):
+            show.done()
+            return {"state": data["new"], "reason": data.get("reason", "")}
+    show.done()
+    raise CliError(f"job {job['id']}: hostd closed the connection while it sliced",
+                   EXIT_UNREACHABLE)
+
+
+class SliceProgress:
+    """``slicing part.stl: replay check (65%)`` on one line of a terminal (nothing when the
+    output is no terminal)."""
+
+    def __init__(self, out: Any, name: str) -> None:
+        self.out = out
+        self.tty = bool(getattr(out, "isatty", lambda: False)())
+        self.name = name
+        self.shown = False
+
+    @staticmethod
+    def text(name: str, data: dict[str, Any]) -> str:
+        return f"slicing {printable(name)}: {data.get('stage')} ({data.get('percent', 0):.0f}%)"
+
+    def update(self, data: dict[str, Any]) -> None:
+        if self.tty:
+            self.out.write("\r\033[K" + self.text(self.name, data))
+            self.out.flush()
+            self.shown = True
+
+    def done(self) -> None:
+        if self.shown:
+            self.out.write("\r\033[K")
+            self.out.flush()
+            self.shown = False
+
+
+def _show_end(c: Client, job_id: int, state: str, reason: str) -> None:
+    """``print --wait`` once the job ended: its summary, or (not completed) the reason as
+    an error (exit 1)."""
+    if state != "completed":
+        raise CliError(f"job {job_id} {state}: {reason}", EXIT_FAILED)
+    try:
+        job = c.call("job.get", id=job_id)
+    except CliError:
+        return  # hostd went away after the job ended: the summary is in hostctl job
+    line = summary_text((job.get("info") or {}).get("summary"))
+    if line:
+        print(line, flush=True)
+
+
+def summary_text(summary: dict[str, Any] | None) -> str:
+    """``summary: 1234.5 mm of filament (3.71 g), 0:12:34, 3 sub-parts, 2 transitions,
+    0 resends``, or ``""`` for a job without one."""
+    if not summary:
+        return ""
+    mass = summary.get("mass_g")
+    return (f"summary: {summary.get('filament_mm', 0):.1f} mm of filament"
+            + ("" if mass is None else f" ({mass:.2f} g)")
+            + f", {_hms(float(summary.get('time_s') or 0))}, "
+            f"{summary.get('subparts', 0)} sub-parts, {summary.get('transitions', 0)} "
+            f"transitions, {summary.get('resends', 0)} resends")
 
 
 def slice_options(args: argparse.Namespace) -> dict[str, Any]:
@@ -291,6 +401,8 @@ def _show_job_event(bar: ProgressBar, event: str, data: dict[str, Any]) -> None:
     """A job event other than a state change, on the progress bar's terminal."""
     if event == "job.progress":
         bar.update(data)
+    elif event == "job.slicing":
+        bar.slicing(data)
     elif event == "subpart_started":
         bar.line_break(f"sub-part {data.get('subpart')} started at A {data.get('a')} "
                        f"C {data.get('c')} (checkpoint)")
@@ -329,6 +441,15 @@ class ProgressBar:
             self.out.flush()
         elif pct - self.last_pct >= 10 or pct >= 100:
             self.last_pct = pct
+            print(text, file=self.out, flush=True)
+
+    def slicing(self, data: dict[str, Any]) -> None:
+        """A slice's stage: on the bar's line of a terminal, else a line of its own."""
+        text = SliceProgress.text(self.name, data)
+        if self.tty:
+            self.out.write("\r\033[K" + text)
+            self.out.flush()
+        else:
             print(text, file=self.out, flush=True)
 
     def line_break(self, text: str) -> None:
@@ -438,6 +559,47 @@ def _slice_flags(job: dict[str, Any]) -> str:
     flags = (["--allow-overhang"] if job.get("allow_overhang") else []) + [
         f"--{k} {v}" for k, v in sorted((job.get("slice_options") or {}).items())]
     return f"  [{' '.join(flags)}]" if flags else ""
+
+
+def cmd_job(args: argparse.Namespace) -> int:
+    with _client(args) as c:
+        job = c.call("job.get", id=args.id)
+    if args.json:
+        _emit_json(job)
+        return EXIT_OK
+    for line in job_lines(job):
+        print(line)
+    return EXIT_OK
+
+
+def job_lines(job: dict[str, Any]) -> list[str]:
+    """``hostctl job N``: the job whole, a line a fact, then its state history."""
+    info = job.get("info") or {}
+    est = job.get("estimate") or {}
+    lines = [f"job {job['id']} {job['state']}: {printable(job['name'])}"
+             + (f" ({printable(job['reason'])})" if job.get("reason") else ""),
+             f"  file: {info.get('format', job['kind'])}, {job['total_lines']} G-code lines"
+             + (f", sliced in {info['slice_s']:.1f} s" if "slice_s" in info else ""),
+             f"  progress: {job['progress'] * 100:.1f}% (line {job['acked_lines']}/"
+             f"{job['total_lines']}, sub-part {_or_dash(job.get('subpart'))}, layer "
+             f"{_or_dash(job.get('layer'))})"]
+    if est.get("time_s") is not None:
+        lines.append(f"  estimate: {float(est.get('filament_mm') or 0):.1f} mm of filament, "
+                     f"{_hms(float(est['time_s']))}")
+    summary = summary_text(info.get("summary"))
+    if summary:
+        lines.append(f"  {summary}")
+    lines.append("  history:")
+    for h in job.get("history") or []:
+        lines.append(f"    {_when(h.get('at'))}  {h.get('old') or 'new'} -> {h['new']}"
+                     + (f"  ({printable(h['reason'])})" if h.get("reason") else ""))
+    return lines
+
+
+def _when(at: Any) -> str:
+    """A Unix time as local ``YYYY-MM-DD HH:MM:SS``."""
+    return "-" if at is None else time.strftime("%Y-%m-%d %H:%M:%S",
+                                                time.localtime(float(at)))
 
 
 def _show_job(job: dict[str, Any], as_json: bool) -> None:

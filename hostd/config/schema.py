@@ -249,6 +249,33 @@ SCHEMA: dict[str, dict[str, Field]] = {
             "whole request within daemon.idle_timeout is closed); past it a new one gets "
             "503 and is closed.", 8, lo=1, hi=1024, integer=True),
     },
+    "http": {
+        "enabled": Flag("Serve the HTTP and WebSocket API (JSON-RPC at /websocket, uploads, "
+                        "the slicers' OctoPrint and Moonraker upload endpoints, the web "
+                        "page at /). Every request needs a key of http.api_key_file, but "
+                        "GET /api/version.", False),
+        "host": Text("HTTP listen address (loopback by default). Beyond loopback the unit "
+                     "needs the clients' addresses allowed (IPAddressAllow= in a drop-in) "
+                     "and a TLS reverse proxy should front it (README: Security).",
+                     "127.0.0.1"),
+        "port": Number("HTTP TCP port (Moonraker's).", 7125, lo=1, hi=65535, integer=True),
+        "api_key_file": Text("File of the API keys, one a line (hostctl api-key new, list, "
+                             "revoke); read again when it changes.", "/etc/hostd/api-keys",
+                             path=True),
+        "max_upload_mb": Number("Largest request body (an upload), MiB; a larger one gets "
+                                "413. An upload is also held to daemon.max_upload_bytes.",
+                                64, lo=1, hi=16384, integer=True),
+    },
+    "notify": {
+        "command": Text(
+            "Shell command run when a job completes, fails or pauses, with the job's JSON "
+            "(as hostctl job --json shows it) on its standard input and HOSTD_JOB_ID, "
+            "HOSTD_JOB_STATE, HOSTD_JOB_NAME in its environment; empty: none. It runs as "
+            "hostd's user, under the unit's hardening (no network beyond loopback unless "
+            "allowed); a failure is logged as a warning.", ""),
+        "timeout": Number("Seconds notify.command may run before it is killed.", 30.0,
+                          lo=1, hi=3600),
+    },
     "sim": {
         "rx_buffer_bytes": Number("Emulated firmware receive buffer, bytes.", 127, lo=16,
                                   hi=65536, integer=True),

@@ -15,7 +15,7 @@ import logging
 import math
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from hostd.control.codes import CONNECTION_LIMIT, MESSAGE_TOO_LARGE
 from hostd.control.limits import SHORT_REQUEST, IdleTimer, Ticket
@@ -30,11 +30,17 @@ PIPELINE = 16
 """Whole requests a connection may have waiting before it is read no further."""
 
 
+class Subscribers(Protocol):
+    """The server of a :class:`Client`: it counts the subscribed ones."""
+
+    subscribers: int
+
+
 class Client:
     """What a handler sees of its connection (``ctx``): its id, its event subscription,
-    and hooks to run once it has ended."""
+    and hooks to run once it has ended (a control connection's, or a WebSocket's)."""
 
-    def __init__(self, cid: int, server: ControlServer) -> None:
+    def __init__(self, cid: int, server: Subscribers) -> None:
         self.id = cid
         self.server = server
         self._subscribed: frozenset[str] | None = None  # None: not subscribed

@@ -21,7 +21,7 @@ from hostd.control.rpc import Encoded, Endpoint, Param, Registry
 from hostd.control.server import Client
 from hostd.control.upload import PartUploads, write_base64
 from hostd.events import check_names
-from hostd.jobs.spool import Staged
+from hostd.jobs.spool import UPLOAD_KINDS, Staged
 from hostd.jobs.states import JobStateError, parse_state
 from hostd.link.replies import Ok, Position, Reply, Temperatures
 from hostd.slicing_worker import SliceOptions
@@ -211,14 +211,14 @@ ENDPOINTS: tuple[Endpoint, ...] = (
     Endpoint("job.submit", job_submit, (
         Param("name", "str", line=True),
         Param("data", "str", required=False, doc="the file (else the job.upload parts)"),
-        Param("kind", "str", required=False, choices=("stl", "gcode")),
+        Param("kind", "str", required=False, choices=UPLOAD_KINDS),
         Param("encoding", "str", required=False, default="base64",
               choices=("base64", "text")),
         Param("allow_overhang", "bool", required=False, default=False,
-              doc="STL: keep a file with unsupported wall layers (else the slice fails)"),
-        Param("seed", "int", required=False, doc="STL: decompose.seed for this job"),
-        Param("parts", "int", required=False, doc="STL: decompose.parts for this job")),
-        doc="queue an STL or G-code upload (content in the request)"),
+              doc="a part: keep a file with unsupported wall layers (else the slice fails)"),
+        Param("seed", "int", required=False, doc="a part: decompose.seed for this job"),
+        Param("parts", "int", required=False, doc="a part: decompose.parts for this job")),
+        doc="queue an STL, 3MF, OBJ or G-code upload (content in the request)"),
     Endpoint("job.upload", job_upload, (
         Param("data", "str", doc="a part of the file, base64"),
         Param("offset", "int", doc="its byte offset in the file (0 starts one)")),

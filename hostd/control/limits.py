@@ -114,6 +114,13 @@ def limit_settings_from_config(config: Mapping[str, Any]) -> LimitSettings:
                          max_buffered_bytes=int(config["daemon.max_buffered_bytes"]))
 
 
+def listen_tcp(host: str, port: int, backlog: int) -> socket.socket:
+    """A listening TCP socket on ``host:port`` (IPv4 or IPv6, as the address is)."""
+    family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM,
+                                flags=socket.AI_PASSIVE)[0][0]
+    return socket.create_server((host, port), family=family, backlog=backlog)
+
+
 class Throttled:
     """A log line of one kind at most every ``interval`` seconds; the next one logged says
     how many were held back meanwhile (the counters keep the full count)."""

@@ -28,6 +28,20 @@ class Active:
     layer, so the start script's heat-up (or a resume's reheat) does not count as slow
     printing; None before it."""
 
+    _layer_counts: dict[int, int] | None = None
+
+    def layers_of(self, subpart: int | None) -> int | None:
+        """How many layers sub-part ``subpart`` of the program has (``None`` before the
+        first)."""
+        if subpart is None:
+            return None
+        if self._layer_counts is None:
+            counts: dict[int, int] = {}
+            for mark in self.program.layers:
+                counts[mark.subpart] = counts.get(mark.subpart, 0) + 1
+            self._layer_counts = counts
+        return self._layer_counts.get(subpart, 0)
+
     def elapsed(self, now: float) -> float:
         paused = self.paused_total + (now - self.paused_at if self.paused_at else 0.0)
         return max(0.0, now - self.started - paused)

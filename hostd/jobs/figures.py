@@ -34,6 +34,8 @@ class JobFigures:
     layers_total: int | None = None
     a: float | None = None
     c: float | None = None
+    subpart_layers: int | None = None
+    """Layers of the sub-part being printed (``layer`` counts within it)."""
     stream: str | None = None
     """The streamer's state (streaming, paused, ...), for the progress event."""
     pause_reason: str | None = None
@@ -53,7 +55,8 @@ class JobFigures:
                    remaining_s=eta(act.program.estimate.get("time_s"), ratio, elapsed - since,
                                    mark),
                    filament_mm=modal.extruded, subparts_total=len(act.program.subparts),
-                   layers_total=len(act.program.layers), a=modal.position["A"],
+                   layers_total=len(act.program.layers),
+                   subpart_layers=act.layers_of(st.subpart), a=modal.position["A"],
                    c=modal.position["C"], stream=st.state, pause_reason=st.pause_reason)
 
     @classmethod
@@ -74,7 +77,8 @@ class JobFigures:
                 "progress": self.progress, "subpart": self.subpart, "layer": self.layer,
                 "elapsed_s": self.elapsed_s, "eta_s": self.remaining_s,
                 "filament_mm": self.filament_mm, "state": self.state, "stream": self.stream,
-                "a": self.a, "c": self.c}
+                "a": self.a, "c": self.c, "subparts_total": self.subparts_total,
+                "subpart_layers": self.subpart_layers}
 
     def status(self) -> dict[str, Any]:
         """``status()``'s ``current`` and ``latest`` job (the metrics read them)."""
@@ -82,7 +86,8 @@ class JobFigures:
                 "state": self.state, "progress": self.progress, "acked": self.acked,
                 "total": self.total, "subpart": self.subpart,
                 "subparts_total": self.subparts_total, "layer": self.layer,
-                "layers_total": self.layers_total, "elapsed_s": self.elapsed_s,
+                "layers_total": self.layers_total, "subpart_layers": self.subpart_layers,
+                "elapsed_s": self.elapsed_s,
                 "remaining_s": self.remaining_s, "filament_mm": self.filament_mm,
                 "a": self.a, "c": self.c,
                 "axes": {} if self.a is None else {"A": self.a, "C": self.c},

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from hostd.jobs.spool import SpoolError, check_gcode
+from hostd.jobs.spool import MESH_KINDS, SpoolError, check_gcode
 from hostd.printer.envelope import Envelope
 from hostd.printer.errors import ProgramError
 from hostd.printer.program import Program, parse_program
@@ -48,28 +48,49 @@ def parse_upload(data: bytes, name: str) -> Program:
     return program
 
 
-def check_stl(data: bytes, name: str) -> None:
-    """An STL upload read as its slice will read it (:func:`slicer.mesh.read.parse_stl`): what
-    would stop the slice there (a corrupt, truncated or non-finite file) is refused now, in the
-    slicer's one line, naming the first bad line of an ASCII STL. Repair and placement are
-    left to the slice. Imported here, in the worker: the daemon itself never loads trimesh."""
-    from slicer.mesh import MeshError, parse_stl
+@dataclass(frozen=True)
+class MeshSummary:
+    """What the check of a part to slice found: its format (by content), and where its
+    binary STL was written when it came in another (``None``: the upload is the STL)."""
+
+    format: str
+    converted: str | None = None
+
+
+def check_mesh(data: bytes, name: str, kind: str | None = None,
+               convert_to: str | None = None) -> MeshSummary:
+    """A part upload (STL, 3MF, OBJ) read as its slice will read it
+    (:func:`slicer.mesh.read.parse_mesh`): what would stop the slice there (a corrupt,
+    truncated or non-finite file, a format hostd does not read) is refused now, in the
+    slicer's one line, naming the first bad line of an ASCII STL. A 3MF or OBJ is written as
+    binary STL to ``convert_to``, the file the job slices. Repair and placement are left to
+    the slice. Imported here, in the worker: the daemon itself never loads trimesh."""
+    from slicer.mesh import MeshError, parse_mesh, stl_bytes
 
     try:
-        parse_stl(data, name)
+        mesh, fmt = parse_mesh(data, name, kind)
     except MeshError as exc:
         raise SpoolError(str(exc)) from None
+    if fmt == "stl" or convert_to is None:
+        return MeshSummary(fmt)
+    Path(convert_to).write_bytes(stl_bytes(mesh))
+    return MeshSummary(fmt, convert_to)
+
+
+def check_stl(data: bytes, name: str) -> None:
+    """An STL upload checked as :func:`check_mesh` checks any part."""
+    check_mesh(data, name, "stl")
 
 
 def check_file(path: str, kind: str, name: str, envelope: Envelope | None = None
-               ) -> GcodeSummary | None:
-    """Runs in the worker: check the file at ``path`` as ``kind`` (``stl``: read as the
-    slicer reads it, :func:`check_stl`; ``gcode``: parsed whole, fitted to the printer's
+               ) -> GcodeSummary | MeshSummary:
+    """Runs in the worker: check the file at ``path`` as ``kind`` (a part, ``stl``, ``3mf``
+    or ``obj``: read as the slicer reads it, :func:`check_mesh`, and converted next to
+    ``path`` when it is no STL; ``gcode``: parsed whole, fitted to the printer's
     ``envelope``, and summarized)."""
     data = Path(path).read_bytes()
-    if kind == "stl":
-        check_stl(data, name)
-        return None
+    if kind in MESH_KINDS:
+        return check_mesh(data, name, kind, f"{path}.stl.tmp")
     program = parse_upload(data, name)
     if envelope is not None:
         try:
@@ -89,7 +110,7 @@ class FileChecker:
         self.checks = 0
         self.refused = 0
 
-    async def check(self, path: Path, kind: str, name: str) -> GcodeSummary | None:
+    async def check(self, path: Path, kind: str, name: str) -> GcodeSummary | MeshSummary:
         """:func:`check_file` in the worker; :class:`SpoolError` naming ``name`` when the file
         is refused or the worker died (it is started afresh for the next check)."""
         self.checks += 1
@@ -105,7 +126,7 @@ class FileChecker:
     async def summarize(self, path: Path, name: str) -> GcodeSummary:
         """The summary of the G-code file at ``path`` (see :meth:`check`)."""
         summary = await self.check(path, "gcode", name)
-        assert summary is not None
+        assert isinstance(summary, GcodeSummary)
         return summary
 
     def close(self) -> None:

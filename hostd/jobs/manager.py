@@ -16,6 +16,7 @@ The face of the job domain to the daemon and its control endpoints, over its par
 from __future__ import annotations
 
 import asyncio
+import re
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -25,14 +26,14 @@ from hostd.errors import PrinterBusy, ShuttingDown
 from hostd.events import EventBus
 from hostd.jobs.active import Active
 from hostd.jobs.figures import JobFigures
-from hostd.jobs.file_check import FileChecker
+from hostd.jobs.file_check import FileChecker, GcodeSummary, MeshSummary
 from hostd.jobs.joblog import log
 from hostd.jobs.print_loop import PrintLoop, Readiness, load_program
 from hostd.jobs.progress import ProgressRecorder
 from hostd.jobs.queue import JobQueue
 from hostd.jobs.resume import resume_point, resume_scope
 from hostd.jobs.slice_loop import SliceLoop
-from hostd.jobs.spool import SUFFIX, Spool, SpoolError, Staged, check_name, upload_kind
+from hostd.jobs.spool import MESH_KINDS, SUFFIX, Spool, SpoolError, Staged, check_name, upload_kind
 from hostd.jobs.states import TERMINAL, JobState, JobStateError
 from hostd.jobs.storage import StorageGuard
 from hostd.jobs.store import Job, JobStore
@@ -41,7 +42,10 @@ from hostd.printer.modal import ModalState
 from hostd.printer.program import Program
 from hostd.printer.settings import StreamSettings
 from hostd.printer.streamer import Port, Streamer
-from hostd.slicing_worker import SliceOptions, SlicingWorker
+from hostd.slicing_worker import PICTURES, SliceOptions, SlicingWorker, picture_path
+
+CACHE_KEY = re.compile(r"[0-9a-f]{64}-[0-9a-f]{32}")
+"""A slice cache entry's name (:func:`hostd.slicing_worker.cache_key`)."""
 
 
 class JobManager:
@@ -50,7 +54,8 @@ class JobManager:
     def __init__(self, store: JobStore, spool: Spool, worker: SlicingWorker | None,
                  port_factory: Callable[[], Port], bus: EventBus,
                  settings: StreamSettings, envelope: Envelope | None = None,
-                 printer: Readiness | None = None, hold_after_print: bool = False) -> None:
+                 printer: Readiness | None = None, hold_after_print: bool = False,
+                 resends: Callable[[], int] | None = None) -> None:
         self.store = store
         self.spool = spool
         self.worker = worker
@@ -63,7 +68,7 @@ class JobManager:
         self.recorder = ProgressRecorder(self.queue, self.storage)
         self.slicer = SliceLoop(self.queue, spool, worker, self.checker)
         self.printing = PrintLoop(self.queue, self.recorder, port_factory, settings,
-                                  self._load_program, printer)
+                                  self._load_program, printer, resends)
         self.recovered: list[int] = []
         self._recovered = False
         self._tasks: list[asyncio.Task[None]] = []
@@ -167,10 +172,12 @@ class JobManager:
     async def submit_staged(self, name: str, staged: Staged, kind: str | None = None,
                             options: SliceOptions | None = None) -> Job:
         """Queue an upload written to the spool's staging: checked whole in the worker
-        process, then stored under its digest, with the slice ``options`` of an STL (refused
-        for a G-code: it is not sliced). Afterwards the staged file is gone: stored, or on any
-        error discarded."""
+        process, then stored under its digest (a part sent as 3MF or OBJ as the binary STL
+        the check made of it), with the slice ``options`` of a part (refused for a G-code: it
+        is not sliced). Afterwards the staged file is gone: stored, or on any error
+        discarded."""
         options = options or SliceOptions()
+        converted: Path | None = None
         try:
             if self.queue.stopping:
                 raise ShuttingDown("the daemon is shutting down")
@@ -182,20 +189,34 @@ class JobManager:
             self.spool.check_size(staged.size, name)
             await asyncio.to_thread(staged.finish)  # on disk before the worker reads it
             summary = await self.checker.check(staged.path, kind, name)
-            sha = await asyncio.to_thread(self.spool.commit, staged, SUFFIX[kind])
+            if isinstance(summary, MeshSummary) and summary.converted is not None:
+                converted = Path(summary.converted)
+                sha = await asyncio.to_thread(self.spool.adopt, converted, SUFFIX["stl"])
+            else:
+                sha = await asyncio.to_thread(self.spool.commit, staged,
+                                              SUFFIX["stl" if kind in MESH_KINDS else kind])
         finally:
             staged.discard()
-        estimate, total = (summary.estimate, summary.total) if summary else ({}, 0)
-        job = self.store.add(Path(name).name[:200] or "upload", kind, sha,
-                             gcode_sha=sha if kind == "gcode" else None, estimate=estimate,
+            if converted is not None:
+                converted.unlink(missing_ok=True)
+        return self._queued(name, sha, summary, options)
+
+    def _queued(self, name: str, sha: str, summary: GcodeSummary | MeshSummary,
+                options: SliceOptions) -> Job:
+        """A checked upload stored as ``sha``, now a queued job (a G-code one ready)."""
+        gcode = summary if isinstance(summary, GcodeSummary) else None
+        job = self.store.add(Path(name).name[:200] or "upload", "stl" if gcode is None
+                             else "gcode", sha, gcode_sha=None if gcode is None else sha,
+                             estimate={} if gcode is None else gcode.estimate,
                              allow_overhang=options.allow_overhang,
                              slice_options=dict(options.decompose))
         self.queue.added(job)
-        if kind == "gcode":
-            self.store.update(job.id, total_lines=total)
+        if isinstance(summary, GcodeSummary):
+            self.store.update(job.id, total_lines=summary.total)
             self.queue.set_state(job.id, JobState.READY, "g-code upload")
             self.queue.wake_print.set()
         else:
+            self.store.update(job.id, info={"format": summary.format})
             self.queue.wake_slice.set()
         return self.store.get(job.id)
 
@@ -272,9 +293,10 @@ class JobManager:
         """The operator cleared the platform: the next ready job may start."""
         return self.queue.queue_start()
 
-    def queue_hold(self) -> dict[str, Any]:
-        """No new job starts until :meth:`queue_start` (the job printing goes on)."""
-        return self.queue.queue_hold()
+    def queue_hold(self, reason: str = "held by the operator") -> dict[str, Any]:
+        """No new job starts until :meth:`queue_start` (the job printing goes on); an
+        earlier hold's reason stays."""
+        return self.queue.queue_hold(reason)
 
     def queue_status(self) -> dict[str, Any]:
         return self.queue.queue_status()
@@ -336,6 +358,18 @@ class JobManager:
         out["checkpoints"] = [c.to_dict() for c in self.store.checkpoints(job.id)]
         return out
 
+    def picture(self, job_id: int, which: str) -> Path | None:
+        """The file of a sliced job's picture ``which`` (:data:`PICTURES`), or ``None``
+        when it has none (a G-code upload, a slice older than the pictures)."""
+        info = self.store.get(job_id).info
+        key = info.get("cache_key")
+        if (self.worker is None or which not in PICTURES or which not in
+                (info.get("pictures") or ()) or not isinstance(key, str)
+                or not CACHE_KEY.fullmatch(key)):
+            return None
+        path = picture_path(self.worker.cache.gcode_path(key), which)
+        return path if path.is_file() else None
+
     def status(self) -> dict[str, Any]:
         """A read-only snapshot from memory (no database access).
 
@@ -352,6 +386,7 @@ class JobManager:
                 "recovered": list(self.recovered), "db_checkpoints": self.recorder.checkpoints,
                 "waiting_for_printer": self.printing.waiting_for_printer,
                 "storage": self.storage.status(),
+                "slicing": self.slicer.progress,
                 "queue": self.queue.queue_status(),
                 "file_checks": self.checker.status()}
 

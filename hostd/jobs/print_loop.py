@@ -62,13 +62,16 @@ class PrintLoop:
 
     def __init__(self, queue: JobQueue, recorder: ProgressRecorder,
                  port_factory: Callable[[], Port], settings: StreamSettings, load: Loader,
-                 printer: Readiness | None = None) -> None:
+                 printer: Readiness | None = None,
+                 resends: Callable[[], int] | None = None) -> None:
         self.queue = queue
         self.recorder = recorder
         self.port_factory = port_factory
         self.settings = settings
         self.load = load
         self.printer = printer
+        self.resends = resends or (lambda: 0)
+        """Lines the serial link has sent again since it started (a job's own: the change)."""
         self.resume_request: tuple[int, str] | None = None
         self.refused: dict[int, str] = {}  # job → why its resume was refused (it waits)
         self.waiting_for_printer = False  # a job is ready but the link is down or halted
@@ -169,16 +172,25 @@ class PrintLoop:
                      filament_base=0.0)
         queue.active = act
         queue.set_state(job.id, JobState.PRINTING, note or "printing")
+        resent = self.resends()
         outcome, reason = await _stream(streamer)
         if queue.stopping:
             return  # the manager's stop() records the state
         self.recorder.persist(act, force=True)
+        self._record_summary(act, max(0, self.resends() - resent))
         queue.finish_active(act)
         with contextlib.suppress(JobStateError):
             queue.set_state(job.id, OUTCOME_STATES.get(outcome, JobState.FAILED),
                             reason or outcome)
         if streamer.modal.extruded > 0:  # a part (or a part of one) is on the platform
             queue.hold.after(job.id, LEFT_ON_PLATFORM.get(outcome, "failed"))
+
+    def _record_summary(self, act: Active, resends: int) -> None:
+        """The end-of-job summary (:func:`job_summary`), kept in the job's ``info``."""
+        store = self.queue.store
+        job = store.get(act.job.id)
+        summary = job_summary(act, time.monotonic(), len(store.checkpoints(job.id)), resends)
+        store.update(job.id, info={**job.info, "summary": summary})
 
     def _still(self, job: Job) -> bool:
         """Whether ``job`` is still in the state it had when the print loop took it up: it
@@ -191,6 +203,21 @@ class PrintLoop:
         if now is not job.state:
             log.info("job %d became %s while it loaded; not printed", job.id, now)
         return now is job.state
+
+
+def job_summary(act: Active, now: float, transitions: int, resends: int) -> dict[str, Any]:
+    """What a job took, as it ended: filament fed (mm) and its mass (g, scaled from the
+    slicer's estimate; ``None`` without one), print time (s, pauses left out), the
+    sub-parts of its file, the transitions it passed and the lines the link sent again."""
+    est = act.program.estimate
+    filament = float(act.streamer.modal.extruded)
+    per_mm = (float(est["mass_g"]) / float(est["filament_mm"])
+              if est.get("mass_g") and est.get("filament_mm") else None)
+    return {"filament_mm": round(filament, 1),
+            "mass_g": None if per_mm is None else round(filament * per_mm, 2),
+            "time_s": round(act.elapsed(now), 1), "subparts": len(act.program.subparts),
+            "transitions": transitions, "transitions_planned": len(act.program.transitions),
+            "resends": resends}
 
 
 async def _stream(streamer: Streamer) -> tuple[str, str]:

@@ -186,10 +186,10 @@ class JobQueue:
         self.wake_print.set()
         return self.queue_status()
 
-    def queue_hold(self) -> dict[str, Any]:
+    def queue_hold(self, reason: str = "held by the operator") -> dict[str, Any]:
         """No new job starts until :meth:`queue_start` (the job printing goes on)."""
         if self.hold.reason is None:
-            self.hold.set("held by the operator")
+            self.hold.set(reason)
         return self.queue_status()
 
     def queue_status(self) -> dict[str, Any]:

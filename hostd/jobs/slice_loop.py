@@ -4,6 +4,8 @@ their G-code checked whole and stored in the spool; the job is then ready to pri
 from __future__ import annotations
 
 import asyncio
+from functools import partial
+from typing import Any
 
 from hostd.jobs.file_check import FileChecker
 from hostd.jobs.queue import JobQueue
@@ -24,6 +26,8 @@ class SliceLoop:
         self.worker = worker
         self.checker = checker
         self.slicing: int | None = None  # the job the slicing worker is busy with
+        self.progress: dict[str, Any] | None = None
+        """The slice under way: ``job.slicing``'s data (job_id, name, stage, percent)."""
 
     async def run(self) -> None:
         wake = self.queue.wake_slice
@@ -42,6 +46,12 @@ class SliceLoop:
         if self.slicing == job_id and self.worker is not None:
             self.worker.cancel()
 
+    def _progress(self, job: Job, stage: str, percent: float) -> None:
+        """The slice of ``job`` reached ``stage``: the ``job.slicing`` event."""
+        self.progress = {"job_id": job.id, "name": job.name, "stage": stage,
+                         "percent": percent}
+        self.queue.bus.publish("job.slicing", dict(self.progress))
+
     async def _slice_one(self, job: Job) -> None:
         queue = self.queue
         queue.set_state(job.id, JobState.SLICING, "slicing")
@@ -52,9 +62,10 @@ class SliceLoop:
             self.slicing = job.id
             try:
                 outcome = await self.worker.slice(stl, job.upload_sha, job.name, SliceOptions(
-                    job.allow_overhang, dict(job.slice_options)))
+                    job.allow_overhang, dict(job.slice_options)), partial(self._progress, job))
             finally:
                 self.slicing = None
+                self.progress = None
             summary = await self.checker.summarize(outcome.gcode_path, job.name)
             data = await asyncio.to_thread(outcome.gcode_path.read_bytes)
             sha = await asyncio.to_thread(self.spool.put, data, ".gcode")
@@ -64,8 +75,9 @@ class SliceLoop:
             return
         if queue.state_of(job.id) is not JobState.SLICING:
             return  # cancelled or deleted meanwhile
-        info = {**outcome.info, "slice_s": round(outcome.duration_s, 3),
-                "cache_hit": outcome.cache_hit, "subparts": summary.subparts,
+        info = {**job.info, **outcome.info, "slice_s": round(outcome.duration_s, 3),
+                "cache_hit": outcome.cache_hit, "cache_key": outcome.gcode_path.stem,
+                "subparts": summary.subparts,
                 "layers": summary.layers, "transitions": summary.transitions}
         queue.store.update(job.id, gcode_sha=sha, total_lines=summary.total,
                            estimate=summary.estimate, info=info)

@@ -59,6 +59,18 @@ class Staged:
         self._sha = hashlib.sha256()
         self._max = max_bytes
 
+    @classmethod
+    def written(cls, path: Path, max_bytes: int) -> Staged:
+        """The file another process wrote at ``path``, hashed now (blocking)."""
+        with _storing():
+            os.chmod(path, 0o600)  # the spool's files are the daemon's alone
+            staged = cls(path, open(path, "ab"), max_bytes)  # closed by finish or discard
+            with open(path, "rb") as fh:
+                while chunk := fh.read(1 << 20):
+                    staged._sha.update(chunk)
+                    staged.size += len(chunk)
+        return staged
+
     def write(self, data: bytes) -> None:
         """Append ``data``; :class:`SpoolError` past the spool's size limit."""
         if self._fh is None:
@@ -70,6 +82,10 @@ class Staged:
             self._fh.write(data)
         self._sha.update(data)
         self.size += len(data)
+
+    def digest(self) -> str:
+        """The sha256 hex digest of what was written so far."""
+        return self._sha.hexdigest()
 
     def finish(self) -> str:
         """Flush the file to disk and close it; the sha256 hex digest of what was written."""
@@ -137,6 +153,15 @@ class Spool:
         staged.committed = True
         return digest
 
+    def adopt(self, path: Path, suffix: str) -> str:
+        """Store the file at ``path`` (written in the spool's directory by another process)
+        under its digest, moving it (blocking); the digest."""
+        staged = Staged.written(path, self.max_bytes)
+        try:
+            return self.commit(staged, suffix)
+        finally:
+            staged.discard()
+
     def put(self, data: bytes, suffix: str) -> str:
         """Store ``data`` (atomically, once) and return its sha256 hex digest."""
         self.check_size(len(data))
@@ -175,8 +200,13 @@ class Spool:
         return {"files": len(files), "bytes": sum(p.stat().st_size for p in files)}
 
 
-KINDS = {".stl": "stl", ".gcode": "gcode", ".gco": "gcode", ".g": "gcode", ".nc": "gcode"}
+KINDS = {".stl": "stl", ".3mf": "3mf", ".obj": "obj", ".gcode": "gcode", ".gco": "gcode",
+         ".g": "gcode", ".nc": "gcode"}
 SUFFIX = {"stl": ".stl", "gcode": ".gcode"}
+"""The stored kinds: a part to slice is kept as binary STL whatever it was sent as."""
+UPLOAD_KINDS = ("stl", "3mf", "obj", "gcode")
+MESH_KINDS = frozenset({"stl", "3mf", "obj"})
+"""Uploads the slicer reads (stored as ``stl`` jobs)."""
 
 
 HIDDEN_CATEGORIES = frozenset({"Cc", "Cf", "Cs", "Co", "Zl", "Zp"})
@@ -202,15 +232,16 @@ def check_name(name: str) -> None:
 
 
 def upload_kind(name: str, kind: str | None) -> str:
-    """``stl`` or ``gcode``, given explicitly or from the file name's extension."""
+    """``stl``, ``3mf``, ``obj`` or ``gcode``, given explicitly or from the file name's
+    extension."""
     if kind is not None:
-        if kind not in SUFFIX:
-            raise SpoolError(f"unknown upload kind {kind!r} (stl or gcode)")
+        if kind not in UPLOAD_KINDS:
+            raise SpoolError(f"unknown upload kind {kind!r} ({', '.join(UPLOAD_KINDS)})")
         return kind
     ext = Path(name).suffix.lower()
     if ext not in KINDS:
         raise SpoolError(f"{name or '(no name)'}: cannot tell the kind from the extension "
-                         "(.stl or .gcode); give the kind (hostctl print --kind)")
+                         "(.stl, .3mf, .obj or .gcode); give the kind (hostctl print --kind)")
     return KINDS[ext]
 
 

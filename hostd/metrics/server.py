@@ -24,7 +24,7 @@ from typing import Any
 
 from prometheus_client import make_wsgi_app
 
-from hostd.control.limits import ConnectionGate, Listener, Ticket, Turns
+from hostd.control.limits import ConnectionGate, Listener, Ticket, Turns, listen_tcp
 from hostd.metrics.collector import Snapshot, lookup, make_registry
 from hostd.metrics.http import HttpConnection, simple_response
 
@@ -104,7 +104,7 @@ class MetricsServer:
         now = time.time()
         self.start_time = round(now - uptime if isinstance(uptime, int | float) else now, 3)
         try:
-            self._sock = _listen(self._host, self._port)
+            self._sock = listen_tcp(self._host, self._port, BACKLOG)
         except OSError as exc:
             raise MetricsError(f"metrics: cannot listen on {self._host}:{self._port}: "
                                f"{exc.strerror or exc}") from None
@@ -146,10 +146,3 @@ class MetricsServer:
                 "jobs_finished": dict(self.finished.totals),
                 "connections": len(self.gate.open), "max_connections": self.gate.cap,
                 "refused": self.gate.refused}
-
-
-def _listen(host: str, port: int) -> socket.socket:
-    """A listening TCP socket on ``host:port`` (IPv4 or IPv6, as the address is)."""
-    family = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM,
-                                flags=socket.AI_PASSIVE)[0][0]
-    return socket.create_server((host, port), family=family, backlog=BACKLOG)

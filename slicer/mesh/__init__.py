@@ -1,7 +1,9 @@
 """The part as a mesh: reading STL files, their checks, sample parts and the placement.
 
 * :mod:`~slicer.mesh.read`: :func:`load_mesh` (a file read, repaired, checked and placed),
-  :func:`read_stl` and :func:`parse_stl` (the triangles of an ASCII or binary STL).
+  :func:`parse_mesh` (the triangles of an STL, 3MF or OBJ, the format told by
+  :func:`sniff_format`), :func:`read_stl` and :func:`parse_stl` (ASCII or binary STL),
+  :func:`stl_bytes` (a mesh as binary STL).
 * :mod:`~slicer.mesh.checks`: :func:`repair`, overlapping shells merged
   (:func:`merge_shells`), separate bodies and cavities refused, sizes checked, parts
   exported in inches told apart.
@@ -29,10 +31,11 @@ from slicer.mesh.placement import (
     place_on_platform,
     standing_base,
 )
-from slicer.mesh.read import load_mesh, parse_stl
+from slicer.mesh.read import MESH_FORMATS, load_mesh, parse_mesh, parse_stl, sniff_format, stl_bytes
 from slicer.mesh.samples import pipe2, pipe3, to_manifold, to_trimesh
 
 __all__ = [
+    "MESH_FORMATS",
     "BaseChoice",
     "FlatBase",
     "MeshError",
@@ -43,13 +46,16 @@ __all__ = [
     "load_mesh",
     "merged_note",
     "moved",
+    "parse_mesh",
     "parse_stl",
     "pipe2",
     "pipe3",
     "place_on_platform",
     "repair",
     "separate_bodies",
+    "sniff_format",
     "standing_base",
+    "stl_bytes",
     "to_manifold",
     "to_trimesh",
 ]

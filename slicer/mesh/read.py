@@ -1,19 +1,24 @@
-"""Reading STL parts: the file's triangles, and a part loaded whole, repaired and placed.
+"""Reading parts: the file's triangles, and a part loaded whole, repaired and placed.
 
-:func:`load_mesh` reads ASCII or binary STL with trimesh (:func:`read_stl`,
-:func:`parse_stl`), repairs what can be repaired and refuses what cannot be printed
+:func:`load_mesh` reads ASCII or binary STL, 3MF (every build item with its transform, in
+the model's unit) and OBJ with trimesh (:func:`read_mesh`, :func:`parse_mesh`; the format
+told by the content, :func:`sniff_format`, the file name only when the content does not
+say), repairs what can be repaired and refuses what cannot be printed
 (:mod:`~slicer.mesh.checks`), then places it on the platform
 (:mod:`~slicer.mesh.placement`). Every refusal is a :class:`~slicer.mesh.errors.MeshError`
 whose ``str`` is one line naming the file; for an unreadable ASCII STL it names the first
-line at fault.
+line at fault. A file of another format (PLY, STEP, AMF, ...) is refused as an unsupported
+format, naming it, never with an STL reader's words.
 """
 
 from __future__ import annotations
 
+import io
 import math
 import re
 import struct
 import warnings
+import zipfile
 from dataclasses import replace
 from pathlib import Path
 
@@ -26,6 +31,21 @@ from slicer.mesh.placement import Placement, place_on_platform
 
 _PARSE_ERRORS = (ValueError, TypeError, IndexError, KeyError, ImportError, UnicodeDecodeError,
                  struct.error)
+_ARCHIVE_ERRORS = (zipfile.BadZipFile, StopIteration, SyntaxError, AttributeError, EOFError)
+"""What trimesh's 3MF reader raises on a broken archive or model (lxml's XML errors are
+SyntaxErrors; a model without meshes or build fails on a missing element)."""
+
+MESH_FORMATS = ("stl", "3mf", "obj")
+"""The formats :func:`parse_mesh` reads."""
+SUFFIXES = {".stl": "stl", ".3mf": "3mf", ".obj": "obj"}
+UNITS_MM = {"micron": 0.001, "millimeter": 1.0, "centimeter": 10.0, "inch": 25.4,
+            "foot": 304.8, "meter": 1000.0}
+"""3MF's model units (the ``unit`` attribute; millimeter when absent) in millimetres."""
+_MAGIC = ((b"ply", "PLY"), (b"ISO-10303-21", "STEP"), (b"glTF", "glTF (GLB)"),
+          (b"OFF", "OFF"), (b"#VRML", "VRML"), (b"#Inventor", "Open Inventor"))
+"""Leading bytes of formats we do not read, and their names."""
+_XML_ROOTS = ((b"<amf", "AMF"), (b"<COLLADA", "COLLADA"), (b"<X3D", "X3D"))
+_OBJ_LINE = re.compile(rb"(v|vt|vn|vp|f|l|p|o|g|s|mtllib|usemtl)\s", re.IGNORECASE)
 
 
 def load_mesh(path: str | Path, build_volume: np.ndarray | None = None,
@@ -57,7 +77,7 @@ def load_mesh(path: str | Path, build_volume: np.ndarray | None = None,
         One line: ``"<file>: <reason>"``.
     """
     name = str(path)
-    mesh, merged = merge_shells(repair(read_stl(path), name), name)
+    mesh, merged = merge_shells(repair(read_mesh(path), name), name)
     check_size(mesh, name, None, min_size)
     hint = inch_hint(mesh, build_volume, min_size)
     if hint:
@@ -69,6 +89,18 @@ def load_mesh(path: str | Path, build_volume: np.ndarray | None = None,
 
 def read_stl(path: str | Path) -> trimesh.Trimesh:
     """Parse an STL file (:func:`parse_stl`), naming it by ``path``."""
+    return parse_stl(_file_bytes(path), str(path))
+
+
+def read_mesh(path: str | Path) -> trimesh.Trimesh:
+    """Parse an STL, 3MF or OBJ file (:func:`parse_mesh`), naming it by ``path``; its
+    extension says the format only when the content does not."""
+    return parse_mesh(_file_bytes(path), str(path), SUFFIXES.get(Path(path).suffix.lower()))[0]
+
+
+def _file_bytes(path: str | Path) -> bytes:
+    """The bytes of the regular file ``path``; :class:`MeshError` naming it when there are
+    none to read."""
     name = str(path)
     try:
         if not Path(path).is_file():  # a directory, /dev/zero, a pipe: no end to read to
@@ -77,7 +109,120 @@ def read_stl(path: str | Path) -> trimesh.Trimesh:
         data = Path(path).read_bytes()
     except OSError as exc:
         raise MeshError(f"{name}: cannot read: {exc.strerror or exc}") from None
-    return parse_stl(data, name)
+    return data
+
+
+def sniff_format(data: bytes) -> str | None:
+    """The format of ``data`` by its content: ``stl``, ``3mf``, ``obj``, the name of a
+    format :func:`parse_mesh` does not read (``PLY``, ``STEP``, ``ZIP archive``, ...), or
+    ``None`` for text it cannot tell (a file name's extension may then say)."""
+    head = data[:4096]
+    if head.startswith(b"PK\x03\x04"):
+        return "3mf" if _is_3mf(data) else "ZIP archive (no 3D/3dmodel.model: not 3MF)"
+    lead = head.lstrip()
+    for magic, fmt in _MAGIC:
+        if lead.startswith(magic):
+            return fmt
+    if lead.startswith(b"<"):
+        return next((fmt for root, fmt in _XML_ROOTS if root in head), "XML")
+    if _is_ascii_stl(data):
+        return "stl"
+    if _looks_like_text(data):
+        return "obj" if _looks_like_obj(head) else None
+    return "stl"
+
+
+def _is_3mf(data: bytes) -> bool:
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as archive:
+            return any(n.lower().endswith("3d/3dmodel.model") for n in archive.namelist())
+    except (zipfile.BadZipFile, OSError, ValueError):
+        return False
+
+
+def _looks_like_obj(head: bytes) -> bool:
+    """Text whose first statements are OBJ's (vertices, faces, groups, comments)."""
+    lines = [ln.strip() for ln in head.splitlines()[:-1] or head.splitlines()]
+    statements = [ln for ln in lines if ln and not ln.startswith(b"#")]
+    return bool(statements) and all(_OBJ_LINE.match(ln + b" ") for ln in statements[:20])
+
+
+def parse_mesh(data: bytes, name: str, kind: str | None = None
+               ) -> tuple[trimesh.Trimesh, str]:
+    """The triangles of STL, 3MF or OBJ ``data`` (unprocessed) and the format read.
+
+    The content says the format (:func:`sniff_format`); ``kind`` (``stl``, ``3mf``,
+    ``obj``: what the file was sent as) only when it cannot tell. A 3MF gives every build
+    item with its transform, scaled from the model's unit to millimetres; an OBJ is in
+    millimetres. The daemon's upload check runs this too, so an upload is refused for what
+    would stop its slice, in the same words.
+
+    Raises
+    ------
+    MeshError
+        One line naming ``name``: ``"part.ply: unsupported format: PLY (hostd reads STL,
+        3MF and OBJ)"``, or what :func:`parse_stl` says of a bad STL.
+    """
+    if not data.strip():
+        raise MeshError(f"{name}: empty file")
+    found = sniff_format(data)
+    if found is not None and found not in MESH_FORMATS:
+        raise MeshError(f"{name}: unsupported format: {found} (hostd reads STL, 3MF and OBJ)")
+    fmt = found or kind or "stl"
+    if fmt == "3mf":
+        return _parse_3mf(data, name), fmt
+    if fmt == "obj":
+        return _parse_obj(data, name), fmt
+    return parse_stl(data, name), fmt
+
+
+def _parse_3mf(data: bytes, name: str) -> trimesh.Trimesh:
+    """Every build item of a 3MF, placed by its transform, in millimetres."""
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            loaded = trimesh.load(io.BytesIO(data), file_type="3mf", process=False)
+    except _PARSE_ERRORS + _ARCHIVE_ERRORS as exc:
+        raise MeshError(f"{name}: not a readable 3MF file ({type(exc).__name__}: "
+                        f"{str(exc)[:80]})") from None
+    unit = str((getattr(loaded, "metadata", None) or {}).get("units") or "millimeter")
+    scale = UNITS_MM.get(unit.lower().rstrip("s"))
+    if scale is None:
+        raise MeshError(f"{name}: 3MF unit {unit!r} is not one of {', '.join(UNITS_MM)}")
+    mesh = _one_mesh(loaded, name, "3MF")
+    if scale != 1.0:
+        mesh.apply_scale(scale)
+    return mesh
+
+
+def _parse_obj(data: bytes, name: str) -> trimesh.Trimesh:
+    """Every object of an OBJ as one mesh."""
+    try:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            loaded = trimesh.load(io.BytesIO(data), file_type="obj", process=False,
+                                  skip_materials=True)
+    except _PARSE_ERRORS as exc:
+        raise MeshError(f"{name}: not a readable OBJ file ({type(exc).__name__})") from None
+    return _one_mesh(loaded, name, "OBJ")
+
+
+def _one_mesh(loaded: object, name: str, fmt: str) -> trimesh.Trimesh:
+    """A loaded scene's geometry, each instance placed, as one mesh; refused when it holds
+    no triangles or non-finite ones."""
+    if isinstance(loaded, trimesh.Scene):
+        loaded = loaded.to_mesh() if loaded.geometry else None
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise MeshError(f"{name}: no triangles in the {fmt} file")
+    _check_finite(loaded, None, name)
+    return loaded
+
+
+def stl_bytes(mesh: trimesh.Trimesh) -> bytes:
+    """``mesh`` as a binary STL (the spool keeps every part to slice as one)."""
+    data = trimesh.exchange.stl.export_stl(mesh)
+    assert isinstance(data, bytes)
+    return data
 
 
 def parse_stl(data: bytes, name: str) -> trimesh.Trimesh:

@@ -272,7 +272,8 @@ async def test_print_wait_says_when_the_hold_starts_after_the_job_was_queued(tmp
     assert rc == 0, err
     lines = out.splitlines()
     held = [i for i, line in enumerate(lines) if line.startswith("queue held: job 1 completed")]
-    assert held and lines[-1].startswith("job 2 completed")
+    assert held and lines[-2].startswith("job 2 completed")
+    assert lines[-1].startswith("summary: ")  # the end-of-job summary (issue 36)
 
 
 @contextlib.asynccontextmanager
@@ -380,8 +381,8 @@ async def test_print_of_a_corrupt_ascii_stl_exits_2_naming_its_line_and_the_prin
 
 @pytest.mark.asyncio
 async def test_ctrl_c_of_print_wait_says_the_job_goes_on_and_estop_takes_json(tmp_path):
-    long = tmp_path / "long.gcode"
-    long.write_text(make_gcode(subparts=1, layers=20, per_layer=200))
+    long = tmp_path / "long.gcode"  # long enough to be printing still when SIGINT comes
+    long.write_text(make_gcode(subparts=1, layers=60, per_layer=200))  # under load too
     async with asyncio.timeout(90), running(tmp_path, sim__throttle=True) as d:
         watcher = await d.rpc()
         await watcher.call("events.subscribe")

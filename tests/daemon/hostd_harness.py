@@ -21,7 +21,7 @@ READY = "ready (socket"
 PART_BYTES = 3 << 16  # hostctl's parts
 
 
-async def hostctl(sock: Path, *args: str) -> tuple[int, str, str]:
+async def hostctl(sock: str | Path, *args: str) -> tuple[int, str, str]:
     """``hostctl --socket SOCK ARGS...`` in a child process: (exit code, stdout, stderr)."""
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "hostd.cli.main", "--socket", str(sock), *args,

@@ -167,7 +167,8 @@ async def test_bad_uploads_rejected_while_a_print_continues(daemon_factory):
             "empty.stl": (b"", "empty.stl: empty upload"),
             "big.gcode": (b"G1 X1\n" * 40_000, "exceeds the limit"),
             "binary.gcode": (b"\xff\xfe\x00G1", "not UTF-8"),
-            "part.obj": (b"v 1 2 3", "cannot tell the kind"),
+            "part.ply": (b"ply\n", "cannot tell the kind"),
+            "part.obj": (b"v 1 2 3", "part.obj: no triangles in the OBJ file"),
             "far.gcode": (b"G28\nG90\nG1 X10 Y10\nG1 X900\n",
                           "far.gcode: line 4: X 900 is outside the machine's travel [0, 500]"
                           " (machine.x_range)"),

@@ -76,7 +76,7 @@ async def test_the_worker_summarizes_as_a_parse_here_would(tmp_path: Path,
         checker.close()
     assert got == expected
     assert [g.subparts for g in got] == [1, 3, 4] and got[1].transitions == 2
-    assert stl is None
+    assert stl == file_check.MeshSummary("stl")
 
 
 @pytest.mark.asyncio
@@ -153,7 +153,7 @@ def test_the_upload_check_and_the_slicer_both_take_overlapping_shells(tmp_path: 
     post.apply_translation([5.0, 0.0, 5.0])
     path = tmp_path / "overlap.stl"
     trimesh.util.concatenate([cube, post]).export(path, file_type=file_type)
-    assert file_check.check_file(str(path), "stl", "overlap.stl") is None
+    assert file_check.check_file(str(path), "stl", "overlap.stl") == file_check.MeshSummary("stl")
     mesh, placement = load_mesh(path)
     assert placement.merged_shells == 2 and mesh.volume == pytest.approx(9000.0)
 
@@ -173,7 +173,7 @@ def test_the_upload_check_and_the_slicer_agree_on_a_binary_stl_of_another_length
     data = path.read_bytes()
     path.write_bytes(data + tail if isinstance(tail, bytes) else data[:tail])
     if isinstance(tail, bytes):
-        assert file_check.check_file(str(path), "stl", "box.stl") is None
+        assert file_check.check_file(str(path), "stl", "box.stl") == file_check.MeshSummary("stl")
         assert load_mesh(path)[0].volume == pytest.approx(8000.0)
     else:
         with pytest.raises(SpoolError, match=r"box\.stl: truncated binary STL"):
@@ -212,5 +212,32 @@ def test_an_ascii_stl_named_in_latin_1_is_taken_by_the_upload_check_as_by_the_sl
     text = trimesh.creation.box([20.0, 20.0, 20.0]).export(file_type="stl_ascii")
     path = written(tmp_path, "box.stl", ("solid café\n" + text.split("\n", 1)[1])
                    .encode("latin-1"))
-    assert file_check.check_file(str(path), "stl", "box.stl") is None
+    assert file_check.check_file(str(path), "stl", "box.stl") == file_check.MeshSummary("stl")
     assert load_mesh(path)[0].volume == pytest.approx(8000.0)
+
+
+def test_a_3mf_upload_is_checked_and_kept_as_the_binary_stl_it_slices(tmp_path: Path):
+    """A part sent as 3MF (even as ``stl``: the content says) is written as binary STL next
+    to the upload: the spool keeps that, and the slice reads it."""
+    import trimesh
+    from mesh_files import IDENTITY, three_mf
+
+    from slicer.mesh import parse_stl
+
+    box = trimesh.creation.box((4.0, 4.0, 4.0))
+    path = written(tmp_path, ".upload-1.tmp", three_mf(box, "centimeter", [IDENTITY]))
+    summary = file_check.check_file(str(path), "stl", "box.3mf")
+    assert isinstance(summary, file_check.MeshSummary) and summary.format == "3mf"
+    assert summary.converted == f"{path}.stl.tmp"
+    mesh = parse_stl(Path(summary.converted).read_bytes(), "box")
+    assert mesh.extents.tolist() == pytest.approx([40.0, 40.0, 40.0])
+
+
+@pytest.mark.parametrize("kind", ["stl", "3mf", "obj"])
+def test_an_unsupported_format_is_refused_as_such_whatever_it_was_sent_as(tmp_path: Path,
+                                                                         kind: str):
+    path = written(tmp_path, "part.bin", b"ply\nformat binary_little_endian 1.0\n")
+    with pytest.raises(SpoolError) as err:
+        file_check.check_file(str(path), kind, "part.ply")
+    assert str(err.value) == ("part.ply: unsupported format: PLY (hostd reads STL, 3MF and "
+                              "OBJ)")

@@ -152,8 +152,15 @@ def test_a_syntax_error_names_its_line(tmp_path, nth, bad):
 
 
 def test_text_that_is_not_stl_is_named_so(tmp_path):
+    text = b"Dear printer,\nplease make me a vase.\n" * 20
+    assert "not an STL file" in _refused(_write(tmp_path, "letter.stl", text))
+
+
+def test_an_obj_named_stl_is_read_as_the_obj_it_is(tmp_path):
+    """Its content says OBJ (issue 36): its own faults are named, not an STL reader's."""
     obj = b"v 1 2 3\nv 2 3 4\nv 3 4 5\nf 1 2 3\n" * 20
-    assert "not an STL file" in _refused(_write(tmp_path, "obj.stl", obj))
+    assert _refused(_write(tmp_path, "obj.stl", obj)).endswith(
+        "obj.stl: all triangles are degenerate")
 
 
 def test_infinite_coordinates_are_one_line_and_no_numpy_warning(tmp_path, recwarn):
