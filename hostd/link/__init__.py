@@ -74,6 +74,7 @@ getting it back.
 ``lines_withdrawn`` (taken back unsent by a pause or cancel),
 ``resend_requests``, ``duplicate_resends``, ``checksum_errors``, ``line_errors``, ``timeouts``,
 ``starve_nudges`` (M105 sent after ``serial.starve_timeout`` while lines waited for credit),
+``resyncs`` (``M110`` s sent after a resend request out of step with the lines taken),
 ``resets``, ``window_bytes``,
 ``flow_control``, ``inflight_lines``, ``inflight_bytes``, ``queued_lines``, ``planner_free``,
 ``buffer_free``, ``advanced_ok``, ``ok_rtt`` (count, last/mean/max ms), ``reconnects``,

@@ -16,7 +16,7 @@ from hostd.link.actions import Notice
 
 log = logging.getLogger(__name__)
 RESEND_INTERVAL = 60.0  # s between two logged resends
-THROTTLED = {"resend": RESEND_INTERVAL, "starved": RESEND_INTERVAL}
+THROTTLED = {"resend": RESEND_INTERVAL, "starved": RESEND_INTERVAL, "resync": RESEND_INTERVAL}
 LEVELS = {"starved": logging.INFO}  # warning for the other kinds
 
 

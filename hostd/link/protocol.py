@@ -14,8 +14,21 @@ rejects (bad checksum, wrong number) is answered at once, out of order, by ``Err
 - acknowledgements count success ``ok``s along the line numbers (conservative: a lost ``ok``
   delays them, never advances them); ``ok N<n>`` (ADVANCED_OK) and ``ok T:`` (the answer to
   a numbered ``M105``, executed in order) resynchronise the count after lost ``ok``s;
-- ``Resend: k`` rewinds transmission to line ``k``; a request caused by a line sent before the
-  latest rewind is a duplicate and ignored; a loop guard counts rewinds per line;
+- ``Resend: k`` rewinds transmission, after a *drain*: nothing new goes out until every
+  transmission holding credit has had its answer (an ``ok``, or an error ``ok``; those sent
+  before a timeout were answered or their answers lost), so that the ``ok`` s counted then
+  say exactly which lines the firmware took. A drain that an ``ok`` lost on the wire leaves
+  short ends at the ok timeout: the request is taken as it came (an ``M110`` is sent again).
+  Every line before ``k`` taken (Marlin's case): transmission goes on from ``k``. A request
+  for a line not yet sent, or out of step with the lines taken (a firmware whose count of
+  lines slipped, as OctoPrint's virtual printer's does after the lines a window had in
+  flight were refused): the numbering is resynchronised with ``N<e> M110 N<e>``, ``e`` the
+  last line taken, sent alone, and transmission goes on from ``e + 1`` once it is answered.
+  So it is too when the firmware refused more than the one line it asked for (the lines a
+  window had in flight after it): a firmware that counts those as received (OctoPrint's
+  virtual printer) would ask for a line ahead at its next error; ``M110`` sets its count
+  back. Requests during the drain are answers to it, not new ones; a loop guard counts
+  rewinds per line;
 - window credit is the bytes of transmissions not yet answered: a success ``ok`` frees every
   transmission of the lines it executed, an error ``ok`` the oldest transmission at or after
   ``k`` (the one rejected), and after a whole timeout of silence all credit is released (an
@@ -225,7 +238,7 @@ class Protocol:
         self.counters.reads += 1
         run: list[Ok] = []  # oks not handled yet, each executing the next line: nine in ten
         for line in lines:
-            if self.state == "ready" and self._after_resend is None:
+            if self.state == "ready" and self._after_resend is None and self._resync is None:
                 if line in _PLAIN_OK:
                     run.append(PLAIN_OK)
                     continue
@@ -269,9 +282,10 @@ class Protocol:
         """When :meth:`tick` must next be called, or ``None`` if nothing is awaited."""
         if self.state == "handshake":
             return self._progress + self.settings.handshake_timeout
-        if self.state == "ready" and (self._sent_max > self._executed or self._inflight):
-            if self._starve_wait and (self._partial is not None or self._pending
-                                      or self._resend):
+        if self.state == "ready" and (self._sent_max > self._executed or self._inflight
+                                      or self._resync is not None):
+            if self._starve_wait and self._resync is None and (
+                    self._partial is not None or self._pending or self._resend):
                 return self._progress + self._starve_wait  # lines wait for credit: "Starved"
             return self._progress + self.settings.ok_timeout
         return None
@@ -337,6 +351,11 @@ class Protocol:
         self._sent_max = 0
         self._epoch = 0
         self._rewind_target = 0
+        self._resync: str | None = None  # "drain", then "m110" (sent, awaiting its ok)
+        self._drain_left = 0  # answers the drain still waits for
+        self._drain_refused = 0  # error oks among them
+        self._resync_line = 0  # the line the firmware asked for
+        self._resync_sent = 0  # M110s sent for this resync
         self._history: dict[int, Item] = {}
         self._history_low = 0
         self._pending = deque()
@@ -396,6 +415,8 @@ class Protocol:
             nbytes += self._continue_partial(lines, nbytes)
             if self._partial is not None:
                 return
+        if self._resync is not None:
+            return  # nothing new goes out until the firmware's count is known
         credit = self.window.credit()  # the window does not change while it pumps
         while True:
             queue = self._resend or self._pending
@@ -491,6 +512,9 @@ class Protocol:
         self._starve_wait = self._starve_timeout
         if self.state == "handshake":
             self._handshake_ok(now)
+            return
+        if self._resync is not None:
+            self._resync_ok(ok, now)
             return
         if self._after_resend is not None:
             self._error_ok(self._after_resend)
@@ -656,6 +680,9 @@ class Protocol:
         self._after_resend = resend.line
         if self.state != "ready":
             return
+        if self._resync is not None:  # during a drain: an answer to a line it waits for
+            self.counters.duplicate_resends += 1
+            return
         if self._is_duplicate(resend.line):
             self.counters.duplicate_resends += 1
             return
@@ -663,14 +690,15 @@ class Protocol:
 
     def _is_duplicate(self, line: int) -> bool:
         if line > self._sent_max:
-            return True
+            return False  # a line never sent: the firmware's count is out of step
         rejected = self._inflight.first_from(line)
         if rejected is None:
             return False
         return rejected.epoch < self._epoch and line >= self._rewind_target
 
     def _rewind(self, line: int) -> None:
-        missing = [n for n in range(line, self._sent_max + 1) if n not in self._history]
+        missing = [n for n in range(min(line, self._executed + 1), self._sent_max + 1)
+                   if n not in self._history]
         if missing:
             self._halt_board()
             self._fail(errors.HistoryExhausted(
@@ -688,9 +716,82 @@ class Protocol:
         self._epoch += 1
         self._rewind_target = line
         self._out.append(Notice("resend", f"firmware asked for line {line} again: resending "
-                                f"{self._sent_max - line + 1} line(s)"))
-        self._resend = deque(self._history[n] for n in range(line, self._sent_max + 1))
+                                f"{max(self._sent_max - line + 1, 1)} line(s)"))
+        self._resend = deque()
+        self._resync, self._resync_line, self._resync_sent = "drain", line, 0
+        # the answers still to come: of the transmissions holding credit (those sent before
+        # a timeout were answered, or their answers lost), the request's own error ok first
+        self._drain_left = self._inflight.lines
+        self._drain_refused = 0
         self.window.shrink()
+
+    # -- resync: the drain, and M110 when the firmware's count is out of step -------------
+
+    def _resync_ok(self, ok: Ok, now: float) -> None:
+        """An ``ok`` during a resync: an answer the drain counts, or the M110's."""
+        refused, self._after_resend = self._after_resend, None
+        if self._resync == "m110":
+            if refused is not None:  # the M110 itself was refused (noise): again, alone
+                self._send_m110(now)
+            else:
+                self._resend_from(self._executed + 1)
+            return
+        if refused is not None:  # the rejected transmission's credit goes back, so that
+            self._drain_refused += 1  # a line going out in parts can be finished
+            self._error_ok(refused)
+        else:
+            line = self._executed_by(ok)
+            if line > self._executed:
+                self._execute_through(line, ok, now)
+        self._drain_left -= 1
+        if self._drain_left <= 0 and self._partial is None:
+            self._drained(now)
+
+    def _drained(self, now: float) -> None:
+        """Every transmission is answered: the ``ok`` s counted are the lines taken. Those
+        left unanswered were sent before a timeout: their answers were lost, and the lines
+        before the one asked for were taken, as the firmware says (not sent again)."""
+        unanswered = self._inflight.first_from(self._executed + 1)
+        if unanswered is not None and unanswered.number < self._resync_line <= self._sent_max + 1:
+            self._execute_through(self._resync_line - 1, PLAIN_OK, now)
+        self._inflight.clear()
+        if self._resync_line == self._executed + 1 and self._drain_refused <= 1:
+            self._resend_from(self._resync_line)  # as Marlin asks: every line before taken
+        else:
+            self.counters.resyncs += 1
+            self._out.append(Notice("resync", (
+                f"firmware asked for line {self._resync_line}, out of step with the "
+                f"{self._executed} lines it took ({self._sent_max} sent): M110 N"
+                f"{self._executed}, then resending from line {self._executed + 1}")))
+            self._send_m110(now)
+
+    def _send_m110(self, now: float) -> None:
+        self._resync_sent += 1
+        if self._resync_sent > self.settings.resend_limit:
+            self._halt_board()
+            self._fail(errors.ResendLoop(
+                f"M110 N{self._executed} refused {self._resync_sent - 1} times (limit "
+                f"{self.settings.resend_limit}): the link is too noisy", self._acked), "halted")
+            return
+        self._resync = "m110"
+        self._progress = now
+        number = self._executed
+        self._out.append(Write(framed(number, f"M110 N{number}")))
+
+    def _resend_from(self, line: int) -> None:
+        """The resync is over: transmission goes on from ``line`` (numbered as before)."""
+        self._resync = None
+        self._rewind_target = line
+        self._resend = deque(self._history[n] for n in range(line, self._sent_max + 1))
+
+    def _resync_timeout(self) -> None:
+        """No answer for a whole timeout during a resync (an ``ok`` lost on the wire): the
+        request is taken as it came, as a rewind before drains did; an M110 is sent again."""
+        if self._resync == "m110" or self._resync_line > self._sent_max:
+            self._inflight.clear()
+            self._send_m110(self._progress)
+        else:
+            self._resend_from(self._resync_line)
 
     # -- other replies ------------------------------------------------------------------
 
@@ -764,6 +865,15 @@ class Protocol:
 
     def _ok_timeout(self, now: float) -> None:
         self.counters.timeouts += 1
+        if self._resync is not None and self._nudged < self.settings.nudges:
+            self._nudged += 1
+            self._progress = now
+            self._out.append(Notice("timeout", (
+                f"no ok for {self.settings.ok_timeout:g} s while resynchronising after a "
+                f"request for line {self._resync_line}")))
+            self._inflight.uncount()  # as below: the firmware's buffer is empty
+            self._resync_timeout()
+            return
         if self._nudged >= self.settings.nudges:
             self._fail(errors.LinkLost(
                 f"no ok for {self.settings.ok_timeout:g} s, even after {self._nudged} {NUDGE} "

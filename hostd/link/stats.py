@@ -24,6 +24,7 @@ class LinkCounters:
     line_errors: int = 0
     timeouts: int = 0
     starve_nudges: int = 0  # nudges of lines starved of credit with no ok (protocol: Starved)
+    resyncs: int = 0  # M110s sent because a resend request was out of step with the lines
     resets: int = 0
     waits: int = 0
 

@@ -136,6 +136,10 @@ SPECS: tuple[Spec, ...] = (
          "long move).", "link.starve_nudges"),
     Spec("hostd_serial_lines_resent_total", "counter", "Lines sent again after a resend request.",
          "link.lines_resent"),
+    Spec("hostd_serial_resyncs_total", "counter", "M110s sent to set the firmware's line "
+         "count back after a resend request out of step with the lines it took (or one that "
+         "refused lines after the one asked for): transmission goes on from the line after "
+         "the last one taken.", "link.resyncs"),
     Spec("hostd_serial_lines_withdrawn_total", "counter", "Job lines taken back unsent by a "
          "pause or cancel (sent again on resume).", "link.lines_withdrawn"),
     Spec("hostd_serial_reads_total", "counter", "Port reads that brought replies (while reads "

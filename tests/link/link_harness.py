@@ -86,7 +86,8 @@ class VirtualBench:
     def _check_ack(self, seq: int) -> None:
         log = self.firmware.log
         for number, text in log[self._log_seen:]:
-            self._jobs_done += number is not None and number > 0 and text != NUDGE
+            self._jobs_done += (number is not None and number > 0 and text != NUDGE
+                                and not text.startswith("M110"))
         self._log_seen = len(log)
         executed = self._jobs_done
         if seq > executed - self._base:
@@ -201,6 +202,8 @@ def assert_whole_valid_lines(sent: list[bytes]) -> None:
 
 
 def job_log(firmware: Firmware) -> list[str]:
-    """Numbered commands the firmware executed, without the handshake and the M105 nudges."""
+    """Numbered commands the firmware executed, without the handshake, the M105 nudges and
+    the ``M110`` s that resynchronise the numbering after a resend request."""
     return [text for number, text in firmware.log
-            if number is not None and number > 0 and text != NUDGE]
+            if number is not None and number > 0 and text != NUDGE
+            and not text.startswith("M110")]

@@ -36,8 +36,11 @@ def board(link: SerialLink) -> Firmware:
 
 
 def executed(firmware: Firmware) -> list[str]:
+    """The numbered job lines the board executed: queries and ``M110`` s (the handshake, a
+    resynchronisation) left out."""
     queries = ("M105", "M114", "M115")
-    return [t for n, t in firmware.log if n is not None and n > 0 and t not in queries]
+    return [t for n, t in firmware.log
+            if n is not None and n > 0 and t not in queries and not t.startswith("M110")]
 
 
 async def collect(link: SerialLink, lines: list[str]) -> list[int]:

@@ -30,8 +30,6 @@ from __future__ import annotations
 
 import asyncio
 import socket
-import tempfile
-import threading
 from typing import Any
 
 import pytest
@@ -41,35 +39,10 @@ from hostd.link.replies import Position, Temperatures
 from hostd.link.transport import Connection, open_socket
 from hostd.sim.settings import SimSettings
 
-virtual = pytest.importorskip(
+pytest.importorskip(
     "octoprint.plugins.virtual_printer.virtual",
     reason="OctoPrint is not installed (optional: pip install octoprint in a separate venv)")
-plugin = pytest.importorskip("octoprint.plugins.virtual_printer")
-
-from bench.virtual_printer import NoPlugins, Profiles, Settings  # noqa: E402  (OctoPrint's)
-
-
-def _pump_writes(sock: socket.socket, printer: Any) -> None:
-    buf = b""
-    while True:
-        data = sock.recv(4096)
-        if not data:
-            return
-        buf += data
-        *lines, buf = buf.split(b"\n")
-        for line in lines:
-            printer.write(line + b"\n")
-
-
-def _pump_reads(sock: socket.socket, printer: Any, stop: threading.Event) -> None:
-    while not stop.is_set():
-        line = printer.readline()  # without its newline, unlike a real port
-        if line:
-            try:
-                sock.sendall(line.rstrip(b"\r\n") + b"\n")
-            except OSError:
-                return
-
+from bench.virtual_printer import Noise, attach
 
 # Marlin's errors, at fixed lines: a resend of the line, a checksum mismatch (both answered
 # with ``Resend`` and an error ``ok``), and a line with no number (only an ``Error:``)
@@ -80,14 +53,10 @@ MARLIN_ERRORS = [
 ]
 
 
-def opener_for(overrides: dict[str, Any]) -> Any:
+def opener_for(overrides: dict[str, Any], noise: Noise | None = None) -> Any:
     async def open_virtual(settings: LinkSettings, sim: SimSettings | None) -> Connection:
         host, board = socket.socketpair()
-        printer = virtual.VirtualPrinter(Settings(overrides), Profiles(),
-                                         tempfile.mkdtemp(), read_timeout=0.1)
-        stop = threading.Event()
-        threading.Thread(target=_pump_writes, args=(board, printer), daemon=True).start()
-        threading.Thread(target=_pump_reads, args=(board, printer, stop), daemon=True).start()
+        attach(board, overrides, noise)
         return await open_socket(host)
     return open_virtual
 
@@ -99,8 +68,7 @@ def opener_for(overrides: dict[str, Any]) -> Any:
     {"rxBuffer": 127, "commandBuffer": 4},
 ], ids=["defaults", "busy", "small-buffers"])
 async def test_stream_against_octoprint_virtual_printer(
-        overrides: dict[str, Any], monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(virtual, "plugin_manager", NoPlugins)
+        overrides: dict[str, Any]) -> None:
     # The virtual printer emulates a 64-byte receive buffer unless told otherwise.
     rx = int(overrides.get("rxBuffer", 64))
     link = SerialLink(LinkSettings(ok_timeout=2.0, nudges=3, handshake_timeout=2.0,
@@ -121,3 +89,29 @@ async def test_stream_against_octoprint_virtual_printer(
     assert isinstance(temps, Temperatures) and "T" in temps.heaters
     assert status["firmware_name"]
     assert status["lines_resent"] > 0
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("mode", ["window", "pingpong"])
+async def test_a_noisy_line_costs_no_ok_timeout_and_runs_every_line_once(mode: str) -> None:
+    """Issue 38, item 6: 2 % of the host's lines corrupted (a bit flipped, caught by the
+    checksum). The emulator counts the lines a window had in flight and refused, and at its
+    next error asks for a line never sent; the link used to wait out the ok timeout there.
+    Relative moves of E 1 each: the E at the end counts every line executed, each once."""
+    noise = Noise(0.02, seed=3)
+    link = SerialLink(LinkSettings(ok_timeout=5.0, handshake_timeout=2.0, flow_control=mode,
+                                   rx_buffer_bytes=64),  # the emulator's receive buffer
+                      opener=opener_for({"simulateReset": False, "simulated_errors": []},
+                                        noise))
+    n = 600
+    lines = ["G91", *(["G1 E1 F60000"] * n), "M400"]
+    async with asyncio.timeout(120):
+        await link.connect()
+        acked = [i async for i in link.stream(lines)]
+        pos = await link.query("M114")
+        status = link.status()
+        await link.close()
+    assert acked == list(range(len(lines)))
+    assert isinstance(pos, Position) and pos.axes["E"] == pytest.approx(n)
+    assert noise.corrupted >= 5 and status["resend_requests"] >= noise.corrupted
+    assert status["timeouts"] == 0

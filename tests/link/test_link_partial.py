@@ -39,18 +39,21 @@ def test_a_resend_replays_only_after_the_line_in_parts_is_finished() -> None:
     assert out == ""  # the halved window has no room: nothing, not even the rest of line 2
     out += wire(p.receive("ok", 0.1))  # the error ok frees line 1: line 2 alone holds credit
     assert sent + out == line(1) + line(2)
-    # the finished old line 2 is rejected too: a duplicate request, and the replay follows
+    # the finished old line 2 is rejected too: a duplicate request. Every line in flight is
+    # answered, two of them refused: the numbering is set back (M110), then the replay
     out += wire(p.receive("Error:Line Number is not Last Line Number+1, Last Line: 0", 0.1))
     out += wire(p.receive("Resend: 1", 0.1))
     out += wire(p.receive("ok", 0.1))
-    assert numbers(sent + out) == ["N1", "N2", "N1"]
-    assert p.counters.duplicate_resends == 1
+    assert numbers(sent + out) == ["N1", "N2", "N0"]
+    assert out.endswith(encode(frame(0, "M110 N0")).decode())
+    assert p.counters.duplicate_resends == 1 and p.counters.resyncs == 1
     done = []
-    for _ in range(3):
+    for _ in range(4):  # the M110's ok, then lines 1 to 3
         actions = p.receive("ok", 0.2)
         done += acks(actions)
         out += wire(actions)
-    assert done == [1, 2, 3] and numbers(sent + out)[:5] == ["N1", "N2", "N1", "N2", "N3"]
+    assert done == [1, 2, 3]
+    assert numbers(sent + out)[:6] == ["N1", "N2", "N0", "N1", "N2", "N3"]
 
 
 def test_a_timeout_finishes_the_line_then_nudges() -> None:

@@ -190,6 +190,8 @@ def test_during_a_resend_the_nudge_is_the_next_line_resent() -> None:
         p.receive(f"Error:checksum mismatch, Last Line: {last}", 0.2)
         p.receive("Resend: 2", 0.2)
         out = wire(p.receive("ok", 0.2))
+    assert out == line(1, "M110 N1")  # all three answered: the numbering set back first
+    out = wire(p.receive("ok", 0.2))
     assert out == line(2, short)  # the halved window: one line; its ok will be lost
     actions = p.tick(1.2)
     assert wire(actions) == line(3, short) and len(starve_notices(actions)) == 1
