@@ -399,6 +399,11 @@ class _Try:
         """Wall layers over air (what a file is refused for)."""
         return 0 if self.report is None else self.report.wall_layers_over_air
 
+    @property
+    def support_free(self) -> bool:
+        """Whether the replay holds every wall by the strict rule (unchecked: taken so)."""
+        return self.report is None or self.report.support_free
+
     def rank(self) -> tuple[int, int, float]:
         """Fewer wall layers over air, then fewer unsupported wall layers, then more walls
         held."""
@@ -420,7 +425,8 @@ def _leaned_instead(error: OverhangError, again: Callable[[LeanHints], _Try]) ->
 
 def _repaired(first: _Try, again: Callable[[LeanHints], _Try] | None,
               timings: dict[str, float], rounds: int | None = None, done: int = 0) -> _Try:
-    """The closed loop: while the best try so far has wall layers over air, plan again
+    """The closed loop: while the best try so far is not support-free by the strict wall
+    rule (:attr:`ReplayReport.support_free`: a layer that bridges counts too), plan again
     with the root's layers leaning (:mod:`slicer.paths.upright`) and hints at the
     unsupported walls of every leaning try (:class:`~slicer.paths.LeanHints`: it leans
     harder there; the first lean takes none, the upright try's misses are not its own), at
@@ -433,7 +439,7 @@ def _repaired(first: _Try, again: Callable[[LeanHints], _Try] | None,
     hints = NO_HINTS
     t0 = time.perf_counter()
     rounds = REPAIR_ROUNDS if rounds is None else rounds
-    while again is not None and done < rounds and best.over_air and _misses(last).size:
+    while again is not None and done < rounds and not best.support_free and _misses(last).size:
         if done:
             hints = hints.more(_misses(last))
         done += 1

@@ -78,6 +78,9 @@ BYTES_PER_HELD = 96  # per sample of a file small enough to be held (stream.HOLD
 BYTES_PER_BEAD = 80  # per bead of the collision check's material (one per 0.5 mm voxel)
 BEADS_PER_MM3 = 16  # of deposited volume, at most (measured 9-14: the sample parts, boxes)
 BYTES_PER_MOVE = 64
+WALLS_HELD = 0.998
+"""Share of wall samples a support-free file holds at least (:attr:`ReplayReport.support_free`,
+with no unsupported wall layer: issue 8's strict wall rule)."""
 
 
 class ReplayBudgetError(SlicingError):
@@ -124,6 +127,14 @@ class ReplayReport:
     def ok(self) -> bool:
         """Whether the file may be emitted (no collisions, no layer printed in the air)."""
         return self.collisions == 0 and not self.overhang_layers
+
+    @property
+    def support_free(self) -> bool:
+        """Whether every wall is held by the strict rule: at least :data:`WALLS_HELD` of the
+        wall samples supported and no wall layer over its unsupported share, bridging or
+        not (what the closed loop aims at; a file is refused only for wall layers over
+        air)."""
+        return self.wall_supported >= WALLS_HELD and not self.unsupported_wall_layers
 
     def to_dict(self) -> dict[str, object]:
         """The report as a plain dict, without ``unsupported_walls`` (arrays)."""
