@@ -157,6 +157,10 @@ def _summary(r: Any, out: Path, seconds: float) -> None:
         print(f"placed turned {turned:.0f}° from the file's orientation: the part's own "
               "bottom has no flat base to stand on, so it stands on its largest flat face")
     print(f"sub-parts {r.subparts}, layers {r.layers}, local thickness {lo:.3f}–{hi:.3f} mm")
+    tried = int(r.timings.get("alternatives_tried", 0))
+    if tried and r.seed is not None:  # the closed loop tried other decompositions
+        print(f"decomposition seed {r.seed}, the best of {tried + 1} decompositions tried "
+              f"(--seed {r.seed} repeats it)")
     print(f"filament {est['filament_mm']:.0f} mm ({est['mass_g']:.1f} g), "
           f"time {_hms(float(est['time_s']))} ({est['time_s']:.0f} s)")
     if rep:

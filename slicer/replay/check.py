@@ -114,11 +114,14 @@ class ReplayReport:
     overhang_layers: list[dict[str, Any]] = field(default_factory=list)
     # the wall layers over air (unsupported_wall_layers less the wall points that bridge
     # sparse infill) described, worst first (at most MAX_WALL_LAYERS), and their unsupported
-    # wall samples in the platform frame (not in to_dict)
+    # wall samples in the platform frame (not in to_dict); strict_walls: those of the
+    # unsupported wall layers by the strict rule (the closed loop's hints)
     wall_layers: list[WallLayer] = field(default_factory=list)
     wall_layers_over_air: int = 0
     unsupported_walls: WallSamples = field(default_factory=WallSamples.empty, repr=False,
                                            compare=False)
+    strict_walls: WallSamples = field(default_factory=WallSamples.empty, repr=False,
+                                      compare=False)
     seconds: float = 0.0
     timings: dict[str, float] = field(default_factory=dict)
     cpu_timings: dict[str, float] = field(default_factory=dict)
@@ -137,9 +140,12 @@ class ReplayReport:
         return self.wall_supported >= WALLS_HELD and not self.unsupported_wall_layers
 
     def to_dict(self) -> dict[str, object]:
-        """The report as a plain dict, without ``unsupported_walls`` (arrays)."""
-        out = asdict(replace(self, unsupported_walls=WallSamples.empty()))
+        """The report as a plain dict, without ``unsupported_walls`` and ``strict_walls``
+        (arrays)."""
+        out = asdict(replace(self, unsupported_walls=WallSamples.empty(),
+                             strict_walls=WallSamples.empty()))
         out.pop("unsupported_walls")
+        out.pop("strict_walls")
         return out
 
     def summary(self) -> str:
@@ -292,7 +298,8 @@ def _report(parsed: ParsedGcode, dep: Deposits, fig: LayerFigures, inside: int,
         overhang_layers=[_layer_dict(per_layer, int(i), to_part)
                          for i in per_layer.overhangs()],
         wall_layers=worst_first(fig.over_air), wall_layers_over_air=len(fig.over_air),
-        unsupported_walls=fig.samples, seconds=seconds, timings=st.wall, cpu_timings=st.cpu)
+        unsupported_walls=fig.samples, strict_walls=fig.strict_samples, seconds=seconds,
+        timings=st.wall, cpu_timings=st.cpu)
 
 
 def _name(layer: WallLayer) -> str:

@@ -140,6 +140,8 @@ class LayerFigures:
         The wall layers over air (bridging counted as support), in print order.
     samples : WallSamples
         The unsupported wall samples of the layers over air.
+    strict_samples : WallSamples
+        Those of the unsupported wall layers (strict rule).
     """
 
     judged: int = 0
@@ -151,6 +153,7 @@ class LayerFigures:
     strict: list[WallLayer] = field(default_factory=list)
     over_air: list[WallLayer] = field(default_factory=list)
     samples: WallSamples = field(default_factory=WallSamples.empty)
+    strict_samples: WallSamples = field(default_factory=WallSamples.empty)
 
 
 def layer_pass(dep: Deposits, model: ModelIndex, ok: np.ndarray, walls: np.ndarray,
@@ -162,7 +165,7 @@ def layer_pass(dep: Deposits, model: ModelIndex, ok: np.ndarray, walls: np.ndarr
     platform-frame points into the part's frame (the wall layers' points).
     """
     out = LayerFigures()
-    per_layer, samples = [], []
+    per_layer, samples, strict_samples = [], [], []
     stride = rules.stride
     for before, first, end in layer_chunks(dep):
         j0 = -(-first // stride) * stride
@@ -183,12 +186,15 @@ def layer_pass(dep: Deposits, model: ModelIndex, ok: np.ndarray, walls: np.ndarr
         per_layer.append(layer_support(s, judged, good, rules.line_width))
         points = WallLayerPoints(s.p[judged], s.seq[judged], s.subpart[judged],
                                  s.layer[judged], wall, ok_c)
-        out.strict += wall_layers(points, None, keep=False)[0]
+        strict, strict_kept = wall_layers(points, None)
+        out.strict += strict
+        strict_samples.append(WallSamples.joined([strict_kept]))
         air, air_samples = wall_layers(replace(points, supported=good), to_part)
         out.over_air += air
         samples.append(WallSamples.joined([air_samples]))  # thinned as it goes
     out.layers = LayerSupport.joined(per_layer)
     out.samples = WallSamples.joined(samples)
+    out.strict_samples = WallSamples.joined(strict_samples)
     return out
 
 
