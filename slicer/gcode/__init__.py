@@ -27,6 +27,7 @@ from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from slicer.gcode.estimate import MotionLimits, estimate_moves
     from slicer.gcode.program import E
     from slicer.gcode.reader import (
         GcodeFormatError,
@@ -35,7 +36,14 @@ if TYPE_CHECKING:
         parse_words,
         read_gcode,
     )
-    from slicer.gcode.writer import Draft, GcodeError, MachineSetup, draft, write_gcode
+    from slicer.gcode.writer import (
+        Draft,
+        GcodeError,
+        MachineSetup,
+        draft,
+        filament_area,
+        write_gcode,
+    )
 
 __all__ = [
     "Draft",
@@ -43,8 +51,11 @@ __all__ = [
     "GcodeError",
     "GcodeFormatError",
     "MachineSetup",
+    "MotionLimits",
     "ParsedGcode",
     "draft",
+    "estimate_moves",
+    "filament_area",
     "parse_lines",
     "parse_words",
     "read_gcode",
@@ -52,9 +63,10 @@ __all__ = [
 ]
 
 _HOMES = {
+    "estimate": ("MotionLimits", "estimate_moves"),
     "program": ("E",),
     "reader": ("GcodeFormatError", "ParsedGcode", "parse_lines", "parse_words", "read_gcode"),
-    "writer": ("Draft", "GcodeError", "MachineSetup", "draft", "write_gcode"),
+    "writer": ("Draft", "GcodeError", "MachineSetup", "draft", "filament_area", "write_gcode"),
 }
 """The module of every name above (the imports for type checkers say the same)."""
 _MODULE_OF = {name: module for module, names in _HOMES.items() for name in names}
