@@ -9,7 +9,8 @@
 * :mod:`~slicer.gcode.transitions`: the moves between sub-parts (lift, rotate, travel,
   approach) clear of the part and the platform.
 * :mod:`~slicer.gcode.extrusions`: every path as one run of vertices, with its filament and
-  joint poses.
+  joint poses; :mod:`~slicer.gcode.merge`: the vertices a longer move passes within the
+  linearisation tolerance, left out.
 * :mod:`~slicer.gcode.program`: a program under construction (comment lines and numeric move
   blocks); :mod:`~slicer.gcode.format`: move lines as text, the whole file at once.
 * :mod:`~slicer.gcode.estimate`: filament and time of the moves.
