@@ -22,7 +22,9 @@ with the default machine limits; ours includes its rotate/return moves and trans
 and the ratios of ours to Cura's without and with supports; the files' command lines and
 lines per minute of print time (with the share of a 115200-baud wire those lines need at
 the framing of ``hostd``'s link, ``N<n> ... *<cs>``); the doubling cost, our slice's wall
-and CPU time at twice the faces over the time at ``--faces``.
+and CPU time at twice the faces over the time at ``--faces``; our per-stage seconds (the
+``seconds …`` line of ``hostctl slice``) and the seconds of its total that no stage lists
+(:func:`unlisted`).
 
 CuraEngine: Debian's package ``cura-engine`` (``apt-get install cura-engine``). Its
 definitions come with Debian's ``cura`` package: found in ``--definitions DIR``, in
