@@ -52,7 +52,7 @@ from slicer.replay import (
 from slicer.settings import ProcessSettings
 
 if TYPE_CHECKING:
-    from slicer.decompose import DecomposeSettings
+    from slicer.decompose import DecomposeSettings, Decomposition
     from slicer.mesh import BaseChoice, Placement
 
 T = TypeVar("T")
@@ -157,6 +157,9 @@ class SliceResult:
     seed : int or None
         The decomposition seed that planned the file (``decompose.seed``: another one than
         asked for when the closed loop found a better decomposition; None: planar).
+    parts : int or None
+        With ``seed``, the K that decomposes it again when the file was planned from another
+        attempt of the decomposition than the first (``decompose.parts``); else None.
     """
 
     lines: list[str]
@@ -174,6 +177,7 @@ class SliceResult:
     walls: WallSamples | None = None
     warning: str | None = None
     seed: int | None = None
+    parts: int | None = None
 
     def summary(self) -> dict[str, object]:
         """The result without the G-code lines, the plan and the wall samples."""
@@ -293,7 +297,9 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
                                   (SliceError, SlicingError, repair.Refused), timings)
         for key, value in timings.items():  # the slice's, where the kept try has none
             best.result.timings.setdefault(key, value)
-        result = _judged(best, job.policy)
+        asked = None if planar else (decompose_settings.seed if decompose_settings else 0)
+        tried = int(timings.get("alternatives_tried", 0))
+        result = _judged(best, job.policy, None if asked is None else asked + tried)
         report("done")
         base = best.plan.base
         return replace(result, merged_shells=placement.merged_shells,
@@ -322,6 +328,7 @@ class _Slicing:
     report: Callable[[str], None]
     t0: float
     timings: dict[str, float]
+    runners_up: list[Decomposition] = field(default_factory=list)
 
     def seeded(self, k: int) -> DecomposeSettings | None:
         """The decomposition settings of the ``k``-th decomposition tried: the seed asked
@@ -336,27 +343,30 @@ class _Slicing:
 
     def decomposed(self, k: int, rounds: int) -> Try[SliceResult]:
         """The best try of the ``k``-th decomposition (:func:`repair.best_decomposition`):
-        planned upright, then leaning for at most ``rounds`` tries. The first one's stage
-        timings are the slice's; another one's refusals of the part itself (its
-        decomposition, its travel) are :class:`repair.Refused`, passed over."""
-        timings = self.timings if k == 0 else {}
-        t0 = self.t0 if k == 0 else time.perf_counter()
+        planned upright, then leaning for at most ``rounds`` tries. The first is the one
+        asked for; the next ones are its runners-up (the decomposition's other valid
+        attempts, :attr:`Decomposition.runners_up`, at no new cost), then the next seeds.
+        The first one's stage timings are the slice's; another one's refusals of the part
+        itself (its decomposition, its travel) are :class:`repair.Refused`, passed over."""
         if k == 0:
-            return self._decomposed(self.seeded(0), rounds, timings, t0)
+            return self._decomposed(self.decompose_settings, rounds, self.timings, self.t0)
         from slicer.decompose import DecompositionError
         from slicer.mesh import MeshError
 
+        runners = len(self.runners_up)
+        which = self.runners_up[k - 1] if k <= runners else self.seeded(k - runners)
         try:
-            return self._decomposed(self.seeded(k), rounds, timings, t0)
+            return self._decomposed(which, rounds, {}, time.perf_counter())
         except (DecompositionError, MeshError) as exc:
             raise repair.Refused(str(exc)) from None
 
-    def _decomposed(self, dec: DecomposeSettings | None, rounds: int,
+    def _decomposed(self, dec: DecomposeSettings | Decomposition | None, rounds: int,
                     timings: dict[str, float], t0: float) -> Try[SliceResult]:
+        """Plan ``dec`` (a decomposition made, or the settings of one to make), then write,
+        check and repair it."""
         self.report("decomposing and planning")
         t1 = time.perf_counter()
-        plan = plan_model(self.mesh, self.placement.matrix, self.settings, self.geometry,
-                          self.head, dec, self.planar, self.build_volume)
+        plan, seed, parts = self._plan(dec)
         timings["plan"] = time.perf_counter() - t1
         mesh, index = self.mesh, self.index
         if plan.base is not None and plan.base.turn is not None:  # stands on another face
@@ -365,7 +375,6 @@ class _Slicing:
                      if index is not None else None)
         if index is not None:  # and its coverage grid while the G-code is written
             index = self.early.submit(_with_grid, index, self.settings)
-        seed = None if self.planar else (0 if dec is None else dec.seed)
 
         def again(hints: LeanHints) -> Try[SliceResult]:
             assert plan.decomposition is not None
@@ -373,12 +382,13 @@ class _Slicing:
             self.report("repair")
             replanned = plan_print(plan.decomposition, self.settings, self.geometry,
                                    self.head, lean=LEAN, hints=hints)
-            return self._finish(mesh, replanned, index, {}, t2, seed)
+            return replace(self._finish(mesh, replanned, index, {}, t2, seed), parts=parts)
 
         retry = again if plan.decomposition is not None and rounds != 0 else None
         leaned = 0
         try:
-            first = self._finish(mesh, plan, index, timings, t0, seed, stage=self.report)
+            first = replace(self._finish(mesh, plan, index, timings, t0, seed,
+                                         stage=self.report), parts=parts)
         except OverhangError as exc:  # a layer in the air upright: leaning may hold it
             if retry is None:
                 raise
@@ -390,6 +400,20 @@ class _Slicing:
             timings["repair_rounds"] = float(done)
             best.result.timings.update({k: timings[k] for k in ("repair", "repair_rounds")})
         return best
+
+    def _plan(self, dec: DecomposeSettings | Decomposition | None
+              ) -> tuple[PrintPlan, int | None, int | None]:
+        """The plan of ``dec``, with the seed (and, for a runner-up, the K) that make its
+        decomposition again; the first plan's runners-up are kept."""
+        from slicer.decompose import Decomposition
+
+        if isinstance(dec, Decomposition):
+            return plan_print(dec, self.settings, self.geometry, self.head), dec.seed, dec.k
+        plan = plan_model(self.mesh, self.placement.matrix, self.settings, self.geometry,
+                          self.head, dec, self.planar, self.build_volume)
+        if plan.decomposition is not None and not self.runners_up:
+            self.runners_up = list(plan.decomposition.runners_up)
+        return plan, None if self.planar else (0 if dec is None else dec.seed), None
 
     def _finish(self, mesh: trimesh.Trimesh, plan: PrintPlan,
                 index: Future[ModelIndex] | None, timings: dict[str, float], t0: float,
@@ -476,14 +500,16 @@ def _with_grid(index: Future[ModelIndex], settings: ProcessSettings) -> ModelInd
     return model
 
 
-def _judged(attempt: Try[SliceResult], policy: OverhangPolicy) -> SliceResult:
+def _judged(attempt: Try[SliceResult], policy: OverhangPolicy, last_seed: int | None
+            ) -> SliceResult:
     """The kept try's result with the decomposition seed that planned it, refused
     (:class:`UnsupportedWallsError`) or warned about as ``policy`` says when it has wall
-    layers over air (:func:`walls_verdict`)."""
-    result = replace(attempt.result, seed=attempt.seed)
+    layers over air (:func:`walls_verdict`; its advice names the seed after ``last_seed``,
+    the last one the closed loop could have tried)."""
+    result = replace(attempt.result, seed=attempt.seed, parts=attempt.parts)
     if attempt.report is None:
         return result
-    warning = walls_verdict(attempt.report, attempt.plan, attempt.seed, policy)
+    warning = walls_verdict(attempt.report, attempt.plan, last_seed, policy)
     return replace(result, warning=warning)
 
 

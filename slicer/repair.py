@@ -6,8 +6,9 @@ one file (a :class:`Try`); here they are tried in turn and the best file is kept
 1. the paper's try (the root upright), then up to :data:`REPAIR_ROUNDS` tries with the root's
    layers leaning (:mod:`slicer.paths.upright`), each after the first hinted at the
    unsupported walls of the last (:func:`repaired`);
-2. when no lean of that decomposition holds every wall, **other decompositions**: the same
-   part decomposed with the next :data:`ALTERNATIVES` seeds (another k-means partition, so
+2. when no lean of that decomposition holds every wall, **other decompositions**, up to
+   :data:`ALTERNATIVES`: the decomposition's runners-up (its other valid attempts, made
+   already), then the part decomposed with the next seeds (another k-means partition, so
    other groups, planes and build order), each tried upright and leaning for at most
    :data:`ALTERNATIVE_ROUNDS` rounds (:func:`best_decomposition`). A seed whose plan fails
    outright (the planner's veto: no plane clears the printed part or the platform) is
@@ -52,12 +53,14 @@ class Refused(Exception):
 @dataclass
 class Try(Generic[R]):
     """One plan's file: the result (the caller's type), its replay report (None unchecked),
-    the plan, and the decomposition seed it was planned with (None: planar)."""
+    the plan, and the decomposition seed (None: planar) and K (None: as configured) that
+    decompose it again."""
 
     result: R
     report: ReplayReport | None
     plan: PrintPlan
     seed: int | None = None
+    parts: int | None = None
 
     @property
     def over_air(self) -> int:

@@ -159,8 +159,9 @@ def _summary(r: Any, out: Path, seconds: float) -> None:
     print(f"sub-parts {r.subparts}, layers {r.layers}, local thickness {lo:.3f}–{hi:.3f} mm")
     tried = int(r.timings.get("alternatives_tried", 0))
     if tried and r.seed is not None:  # the closed loop tried other decompositions
+        again = f"--seed {r.seed}" + (f" --parts {r.parts}" if r.parts else "")
         print(f"decomposition seed {r.seed}, the best of {tried + 1} decompositions tried "
-              f"(--seed {r.seed} repeats it)")
+              f"({again} repeats it)")
     print(f"filament {est['filament_mm']:.0f} mm ({est['mass_g']:.1f} g), "
           f"time {_hms(float(est['time_s']))} ({est['time_s']:.0f} s)")
     if rep:
