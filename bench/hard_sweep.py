@@ -7,7 +7,8 @@
 Every part is sliced as ``hostctl slice`` slices it (``slicer.pipeline.slice_model``, the
 shipped defaults, the retry loop included) at each layer height, and judged by the product's
 own replay: it **passes** when it is written with walls supported >= 99.8 %, no wall layer
-with more than 5 % of its wall points unsupported (the strict rule, bridging not counted),
+with more than 5 % of its wall points unsupported (issue 8's rule: a wall point bridging
+sparse infill inside the part is held),
 no head collision and >= 99 % of the material inside the model. One line per slice
 (sub-parts, walls, unsupported wall layers and those of them over air, collisions, inside,
 seconds, retry rounds, other decomposition seeds tried and the seed kept), then the pass

@@ -81,14 +81,10 @@ class Try(Generic[R]):
                 -self.report.wall_supported)
 
     def misses(self) -> np.ndarray:
-        """The try's unsupported wall samples (platform frame), (k, 3): those of its wall
-        layers over air, else those of its unsupported wall layers by the strict rule."""
+        """The try's unsupported wall samples (platform frame), (k, 3)."""
         if self.report is None:
             return np.zeros((0, 3))
-        walls = self.report.unsupported_walls
-        if not len(walls):
-            walls = self.report.strict_walls
-        return np.asarray(walls.p, dtype=float).reshape(-1, 3)
+        return np.asarray(self.report.unsupported_walls.p, dtype=float).reshape(-1, 3)
 
 
 

@@ -73,6 +73,10 @@ class RootRegionError(DecompositionError):
         self.root, self.regions = root, regions
 
 
+RUNNERS_UP = 2
+"""Valid attempts kept beside the best (:attr:`Decomposition.runners_up`): as many as the
+closed loop tries (``slicer.repair.ALTERNATIVES``)."""
+
 @dataclass(frozen=True)
 class DecomposeSettings:
     """Knobs of the decomposition (config ``decompose.*``)."""
@@ -288,7 +292,7 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
         dec.placement = np.asarray(placement, dtype=float)
         dec.attempts = tried
     best.timings = clock.laps
-    best.runners_up = [d for d in ranked[1:] if not _over_limit(d, area)]
+    best.runners_up = [d for d in ranked[1:] if not _over_limit(d, area)][:RUNNERS_UP]
     for line in tried:
         log.debug("decompose attempt: %s", line)
     _refuse_overhang(best, area)

@@ -57,8 +57,8 @@ def test_a_support_free_first_try_is_kept_without_planning_again() -> None:
     assert (best.result, done, again.asked) == ("upright", 0, [])
 
 
-def test_strict_layers_that_bridge_are_still_repaired_and_the_better_try_kept() -> None:
-    # over air 0 but one strict layer: not support-free, the loop goes on
+def test_a_try_short_of_support_free_is_repaired_and_the_better_try_kept() -> None:
+    # no layer over air but one unsupported wall layer: not support-free, the loop goes on
     again = Script([_try("lean", 0, 0, 0.999)])
     best, done = repaired(_try("upright", 0, 1, 0.999), again, FAILURES)
     assert (best.result, done) == ("lean", 1)
@@ -75,9 +75,9 @@ def test_hints_come_from_the_last_leaning_try_and_a_try_no_better_ends_the_loop(
 
 
 def test_the_first_lean_needs_no_misses_a_hinted_round_does() -> None:
-    # the upright try fails the strict rule with no wall layer over air: no samples of it
-    upright = Try("upright", _report(0, 1, 0.997, misses=0), PrintPlan.__new__(PrintPlan))
-    lean = Try("lean", _report(0, 1, 0.996, misses=0), PrintPlan.__new__(PrintPlan))
+    # the upright try holds too few walls with no wall layer over air: no samples of it
+    upright = Try("upright", _report(0, 0, 0.997, misses=0), PrintPlan.__new__(PrintPlan))
+    lean = Try("lean", _report(0, 0, 0.996, misses=0), PrintPlan.__new__(PrintPlan))
     again = Script([lean, _try("never", 0, 0, 1.0)])
     best, done = repaired(upright, again, FAILURES, rounds=3)
     assert (best.result, done, len(again.asked)) == ("upright", 1, 1)
