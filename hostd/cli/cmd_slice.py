@@ -188,16 +188,31 @@ def _turned_degrees(lines: list[str]) -> float:
     return 0.0
 
 
+COUNTS = {"repair": ("repair_rounds", "round"), "alternatives": ("alternatives_tried", "tried")}
+"""Stages of the closed loop, with the count each comes with: ``repair 7.66 (2 rounds)``."""
+
+
 def _stages(timings: dict[str, float]) -> str:
     """The top-level stages in pipeline order; the text is formatted beside the replay."""
     order = ("load", "plan", "gcode", "read", "replay")
+    counts = {key for key, _ in COUNTS.values()}
     out = [f"{k} {timings[k]:.2f}" for k in order if k in timings]
-    out += [f"{k} {v:.2f}" for k, v in timings.items()
-            if "." not in k and k not in order and k != "text"]
+    out += [_stage(k, v, timings) for k, v in timings.items()
+            if "." not in k and k not in order and k != "text" and k not in counts]
     if "text" in timings:
         out.append(f"text {timings['text']:.2f} beside the replay" if "replay" in timings
                    else f"text {timings['text']:.2f}")
     return ", ".join(out)
+
+
+def _stage(name: str, seconds: float, timings: dict[str, float]) -> str:
+    """``name seconds``, and its count in parentheses for a stage of the closed loop."""
+    if name not in COUNTS or COUNTS[name][0] not in timings:
+        return f"{name} {seconds:.2f}"
+    key, word = COUNTS[name]
+    n = int(timings[key])
+    plural = "s" if n != 1 and word == "round" else ""
+    return f"{name} {seconds:.2f} ({n} {word}{plural})"
 
 
 def _hms(s: float) -> str:
