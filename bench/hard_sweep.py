@@ -7,10 +7,12 @@
 Every part is sliced as ``hostctl slice`` slices it (``slicer.pipeline.slice_model``, the
 shipped defaults, the retry loop included) at each layer height, and judged by the product's
 own replay: it **passes** when it is written with walls supported >= 99.8 %, no wall layer
-with more than 5 % of its wall points unsupported (the strict rule, bridging not counted),
+with more than 5 % of its wall points unsupported (issue 8's rule: a wall point bridging
+sparse infill inside the part is held),
 no head collision and >= 99 % of the material inside the model. One line per slice
 (sub-parts, walls, unsupported wall layers and those of them over air, collisions, inside,
-seconds, retry rounds), then the pass share per class and height. Outcomes other than a
+seconds, retry rounds, other decomposition seeds tried and the seed kept), then the pass
+share per class and height. Outcomes other than a
 pass: ``walls`` (the file ``hostctl slice`` refuses, or writes with --allow-overhang, which
 the bench sets to measure it; a file with unsupported wall layers that all bridge sparse
 infill is written), ``refused`` (refused before a file: the decomposition or the planner,
@@ -68,7 +70,8 @@ def slice_one(task: tuple[str, str, float]) -> dict[str, object]:
         out.update(outcome="pass" if ok else "walls", subparts=res.subparts, walls=walls,
                    bad=len(bad), air=int(rep.get("wall_layers_over_air", 0)),
                    collisions=rep["collisions"], inside=inside,
-                   rounds=int(res.timings.get("repair_rounds", 0)))
+                   rounds=int(res.timings.get("repair_rounds", 0)),
+                   others=int(res.timings.get("alternatives_tried", 0)), seed=res.seed)
     out["seconds"] = time.perf_counter() - t0
     return out
 
@@ -80,7 +83,8 @@ def line(r: dict[str, object]) -> str:
         return (f"{head} sub-parts {r['subparts']:>2}  walls {100 * r['walls']:6.2f} %  "
                 f"bad layers {r['bad']:>3} (over air {r['air']:>3})  collisions "
                 f"{r['collisions']}  inside "
-                f"{100 * r['inside']:6.2f} %  retries {r['rounds']}  {r['seconds']:6.1f} s")
+                f"{100 * r['inside']:6.2f} %  retries {r['rounds']}  other seeds "
+                f"{r['others']} (kept {r['seed']})  {r['seconds']:6.1f} s")
     return f"{head} {r['seconds']:6.1f} s  {r['reason']}"
 
 

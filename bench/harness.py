@@ -10,8 +10,10 @@ import argparse
 import resource
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import TypeVar
 
+import numpy as np
 import trimesh
 
 try:
@@ -28,6 +30,77 @@ def pipe3_50k(target: int = 50_000) -> trimesh.Trimesh:
     while len(mesh.faces) * 4 <= target * 1.5:
         mesh = mesh.subdivide()
     return mesh
+
+
+HARD = Path(__file__).resolve().parent.parent.parent / "shared" / "models" / "hard"
+
+
+def finer(mesh: trimesh.Trimesh, faces: int) -> trimesh.Trimesh:
+    """``mesh`` with exactly ``faces`` faces (or one more), the same surface.
+
+    Each face is split 1 → 4 (``trimesh.Trimesh.subdivide``) while that stays within
+    ``faces``, then the longest edges are halved (:func:`split_edges`) until the count is
+    reached. A watertight mesh stays watertight; no vertex leaves the surface.
+    """
+    out = mesh.copy()
+    while 4 * len(out.faces) <= faces:
+        out = out.subdivide()
+    while len(out.faces) < faces:
+        out = split_edges(out, (faces - len(out.faces) + 1) // 2)
+    return out
+
+
+def split_edges(mesh: trimesh.Trimesh, count: int) -> trimesh.Trimesh:
+    """Halve up to ``count`` of the longest interior edges, no two on one face.
+
+    Each split edge gets its midpoint as a new vertex, and each of its two faces becomes two
+    (same winding), so the mesh gains two faces an edge and stays conforming (no T-junction).
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        (F, 3) faces; its edges shared by two faces are the candidates.
+    count : int
+        Most edges to split.
+
+    Returns
+    -------
+    trimesh.Trimesh
+        (F + 2k, 3) faces, k ≤ ``count`` the edges split.
+    """
+    pairs = mesh.face_adjacency  # (A, 2) faces sharing an edge
+    edges = mesh.face_adjacency_edges  # (A, 2) its vertices
+    length = np.linalg.norm(np.diff(mesh.vertices[edges], axis=1)[:, 0], axis=1)
+    used = np.zeros(len(mesh.faces), dtype=bool)
+    chosen = []
+    for i in np.argsort(-length, kind="stable"):  # greedy: longest first, faces free
+        a, b = pairs[i]
+        if not (used[a] or used[b]):
+            used[a] = used[b] = True
+            chosen.append(i)
+            if len(chosen) == count:
+                break
+    pick = np.asarray(chosen, dtype=int)
+    mid = np.arange(len(pick)) + len(mesh.vertices)
+    faces = mesh.faces
+    split = pairs[pick].ravel()  # (2k,) faces, each with its edge's midpoint
+    m = np.repeat(mid, 2)
+    ends = np.repeat(edges[pick], 2, axis=0)
+    tri = faces[split]
+    # the corner off the edge, then the face's order from it: (c, p, q) with p → q the edge
+    k = np.argmax((tri != ends[:, :1]) & (tri != ends[:, 1:]), axis=1)
+    rows = np.arange(len(tri))[:, None]
+    c, p, q = tri[rows, (k[:, None] + np.arange(3)) % 3].T
+    halves = np.vstack([np.column_stack([c, p, m]), np.column_stack([c, m, q])])
+    keep = np.ones(len(faces), dtype=bool)
+    keep[split] = False
+    vertices = np.vstack([mesh.vertices, mesh.vertices[edges[pick]].mean(axis=1)])
+    return trimesh.Trimesh(vertices, np.vstack([faces[keep], halves]), process=False)
+
+
+def hard_model(name: str, faces: int = 50_000) -> trimesh.Trimesh:
+    """``shared/models/hard/NAME.stl`` made :func:`finer` to ``faces`` faces."""
+    return finer(trimesh.load(HARD / f"{name}.stl", force="mesh"), faces)
 
 
 MODELS: dict[str, Callable[[], trimesh.Trimesh]] = {

@@ -237,7 +237,8 @@ def _summary(result: Any) -> dict[str, Any]:
             "replay": {k: v for k, v in result.replay.items()
                        if isinstance(v, int | float)},
             "merged_shells": int(result.merged_shells),
-            "base_note": result.base_note,
+            "base_note": result.base_note, "seed": result.seed,
+            "parts": result.parts,
             "unsupported_wall_layers": len(result.replay.get("unsupported_wall_layers", [])),
             "overhang_warning": result.warning}
 

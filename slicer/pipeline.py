@@ -25,13 +25,21 @@ import trimesh
 from numpy.typing import ArrayLike
 
 from kinematics.machine import MachineGeometry
-from slicer import envelope
+from slicer import envelope, repair
 from slicer.advice import CONFIG_KEYS, Knobs, overhang_message, walls_message, walls_warning
 from slicer.gcode import Draft, E, MachineSetup, draft, parse_words
 from slicer.hugepages import small_pages
-from slicer.paths import LEAN, NO_HINTS, LeanHints, SlicingError, plan_print
+from slicer.paths import LEAN, LeanHints, SlicingError, plan_print
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
+from slicer.repair import (
+    ALTERNATIVES,
+    REPAIR_ROUNDS,
+    Try,
+    best_decomposition,
+    leaned_instead,
+    repaired,
+)
 from slicer.replay import (
     ModelIndex,
     ReplayReport,
@@ -44,13 +52,12 @@ from slicer.replay import (
 from slicer.settings import ProcessSettings
 
 if TYPE_CHECKING:
-    from slicer.decompose import DecomposeSettings
+    from slicer.decompose import DecomposeSettings, Decomposition
     from slicer.mesh import BaseChoice, Placement
 
 T = TypeVar("T")
 log = logging.getLogger(__name__)
 
-REPAIR_ROUNDS = 3  # plans again, leaning, with hints from the replay (the closed loop)
 Progress = Callable[[str, float], None]
 """``progress(stage, percent)``: a slice's stage as it starts, and how far the whole is."""
 STAGES = (("reading the part", 0.0), ("decomposing and planning", 5.0),
@@ -147,6 +154,12 @@ class SliceResult:
         The replay's unsupported wall samples (platform frame), for a preview; None unchecked.
     warning : str or None
         One line: the file has unsupported wall layers and was written as the caller allowed.
+    seed : int or None
+        The decomposition seed that planned the file (``decompose.seed``: another one than
+        asked for when the closed loop found a better decomposition; None: planar).
+    parts : int or None
+        With ``seed``, the K that decomposes it again when the file was planned from another
+        attempt of the decomposition than the first (``decompose.parts``); else None.
     """
 
     lines: list[str]
@@ -163,6 +176,8 @@ class SliceResult:
     base_note: str | None = None
     walls: WallSamples | None = None
     warning: str | None = None
+    seed: int | None = None
+    parts: int | None = None
 
     def summary(self) -> dict[str, object]:
         """The result without the G-code lines, the plan and the wall samples."""
@@ -270,44 +285,143 @@ def slice_model(mesh_or_path: trimesh.Trimesh | str | Path, settings: ProcessSet
         # the replay's model index needs only the placed mesh: built on the second core
         # while the decomposition and the layers (mostly one thread) are computed
         index = early.submit(model_index, mesh, settings.line_width) if check else None
-        t1 = time.perf_counter()
-        report("decomposing and planning")
-        plan = plan_model(mesh, placement.matrix, settings, geometry, head,
-                          decompose_settings, planar, build_volume)
-        timings["plan"] = time.perf_counter() - t1
-        if plan.base is not None and plan.base.turn is not None:  # stands on another face
-            mesh = _turned(mesh, plan.base, name, platform_radius)
-            index = early.submit(model_index, mesh, settings.line_width) if check else None
-        if index is not None:  # and its coverage grid while the G-code is written
-            index = early.submit(_with_grid, index, settings)
         travel_ranges = tuple((float(lo), float(hi)) for lo, hi in np.reshape(travel, (3, 2)))
-        setup = MachineSetup(geometry, head, platform_radius, travel_ranges)
-        seed = None if planar else (decompose_settings.seed if decompose_settings else 0)
-        policy = OverhangPolicy(allow_overhang, knobs or CONFIG_KEYS)
+        job = _Slicing(mesh, placement, index, early, settings, geometry, head,
+                       MachineSetup(geometry, head, platform_radius, travel_ranges),
+                       OverhangPolicy(allow_overhang, knobs or CONFIG_KEYS), name, keep_plan,
+                       planar, build_volume, decompose_settings, report, t0, timings)
+        rounds = REPAIR_ROUNDS if repair_rounds is None else repair_rounds
+        fixed = planar or rounds == 0 or (decompose_settings is not None
+                                          and decompose_settings.root is not None)
+        best = best_decomposition(job.decomposed, 0 if fixed else ALTERNATIVES, rounds,
+                                  (SliceError, SlicingError, repair.Refused), timings)
+        for key, value in timings.items():  # the slice's, where the kept try has none
+            best.result.timings.setdefault(key, value)
+        asked = None if planar else (decompose_settings.seed if decompose_settings else 0)
+        tried = int(timings.get("alternatives_tried", 0))
+        result = _judged(best, job.policy, None if asked is None else asked + tried)
+        report("done")
+        base = best.plan.base
+        return replace(result, merged_shells=placement.merged_shells,
+                       base_note=None if base is None else base.note,
+                       seconds=time.perf_counter() - t0)
 
-        def again(hints: LeanHints) -> _Try:
+
+@dataclass
+class _Slicing:
+    """One part being sliced: what every decomposition tried of it shares."""
+
+    mesh: trimesh.Trimesh
+    placement: Placement
+    index: Future[ModelIndex] | None
+    early: ThreadPoolExecutor
+    settings: ProcessSettings
+    geometry: MachineGeometry
+    head: Printhead
+    setup: MachineSetup
+    policy: OverhangPolicy
+    name: str
+    keep_plan: bool
+    planar: bool
+    build_volume: np.ndarray | None
+    decompose_settings: DecomposeSettings | None
+    report: Callable[[str], None]
+    t0: float
+    timings: dict[str, float]
+    runners_up: list[Decomposition] = field(default_factory=list)
+
+    def seeded(self, k: int) -> DecomposeSettings | None:
+        """The decomposition settings of the ``k``-th decomposition tried: the seed asked
+        for, then the next ones."""
+        if k == 0:
+            return self.decompose_settings
+        from slicer.decompose import DecomposeSettings
+
+        base = self.decompose_settings or DecomposeSettings(
+            nozzle_diameter=self.settings.nozzle_diameter)
+        return replace(base, seed=base.seed + k)
+
+    def decomposed(self, k: int, rounds: int) -> Try[SliceResult]:
+        """The best try of the ``k``-th decomposition (:func:`repair.best_decomposition`):
+        planned upright, then leaning for at most ``rounds`` tries. The first is the one
+        asked for; the next ones are its runners-up (the decomposition's other valid
+        attempts, :attr:`Decomposition.runners_up`, at no new cost), then the next seeds.
+        The first one's stage timings are the slice's; another one's refusals of the part
+        itself (its decomposition, its travel) are :class:`repair.Refused`, passed over."""
+        if k == 0:
+            return self._decomposed(self.decompose_settings, rounds, self.timings, self.t0)
+        from slicer.decompose import DecompositionError
+        from slicer.mesh import MeshError
+
+        runners = len(self.runners_up)
+        which = self.runners_up[k - 1] if k <= runners else self.seeded(k - runners)
+        try:
+            return self._decomposed(which, rounds, {}, time.perf_counter())
+        except (DecompositionError, MeshError) as exc:
+            raise repair.Refused(str(exc)) from None
+
+    def _decomposed(self, dec: DecomposeSettings | Decomposition | None, rounds: int,
+                    timings: dict[str, float], t0: float) -> Try[SliceResult]:
+        """Plan ``dec`` (a decomposition made, or the settings of one to make), then write,
+        check and repair it."""
+        self.report("decomposing and planning")
+        t1 = time.perf_counter()
+        plan, seed, parts = self._plan(dec)
+        timings["plan"] = time.perf_counter() - t1
+        mesh, index = self.mesh, self.index
+        if plan.base is not None and plan.base.turn is not None:  # stands on another face
+            mesh = _turned(mesh, plan.base, self.name, self.setup.platform_radius)
+            index = (self.early.submit(model_index, mesh, self.settings.line_width)
+                     if index is not None else None)
+        if index is not None:  # and its coverage grid while the G-code is written
+            index = self.early.submit(_with_grid, index, self.settings)
+
+        def again(hints: LeanHints) -> Try[SliceResult]:
             assert plan.decomposition is not None
             t2 = time.perf_counter()
-            report("repair")
-            replanned = plan_print(plan.decomposition, settings, geometry, head, lean=LEAN,
-                                   hints=hints)
-            return _finish(mesh, replanned, settings, setup, index, {}, t2, keep_plan, name,
-                           seed, policy, judge=False)
+            self.report("repair")
+            replanned = plan_print(plan.decomposition, self.settings, self.geometry,
+                                   self.head, lean=LEAN, hints=hints)
+            return replace(self._finish(mesh, replanned, index, {}, t2, seed), parts=parts)
 
-        retry = again if plan.decomposition is not None and repair_rounds != 0 else None
+        retry = again if plan.decomposition is not None and rounds != 0 else None
         leaned = 0
         try:
-            first = _finish(mesh, plan, settings, setup, index, timings, t0, keep_plan, name,
-                            seed, policy, judge=False, stage=report)
+            first = replace(self._finish(mesh, plan, index, timings, t0, seed,
+                                         stage=self.report), parts=parts)
         except OverhangError as exc:  # a layer in the air upright: leaning may hold it
             if retry is None:
                 raise
-            first, leaned = _leaned_instead(exc, retry), 1
-        best = _repaired(first, retry, timings, repair_rounds, done=leaned)
-        result = _judged(best, seed, policy)
-        report("done")
-        return replace(result, merged_shells=placement.merged_shells,
-                       base_note=None if plan.base is None else plan.base.note)
+            first, leaned = leaned_instead(exc, retry, (SliceError, SlicingError)), 1
+        t3 = time.perf_counter()
+        best, done = repaired(first, retry, (SliceError, SlicingError), rounds, leaned)
+        if done:
+            timings["repair"] = timings.get("repair", 0.0) + time.perf_counter() - t3
+            timings["repair_rounds"] = float(done)
+            best.result.timings.update({k: timings[k] for k in ("repair", "repair_rounds")})
+        return best
+
+    def _plan(self, dec: DecomposeSettings | Decomposition | None
+              ) -> tuple[PrintPlan, int | None, int | None]:
+        """The plan of ``dec``, with the seed (and, for a runner-up, the K) that make its
+        decomposition again; the first plan's runners-up are kept."""
+        from slicer.decompose import Decomposition
+
+        if isinstance(dec, Decomposition):
+            return plan_print(dec, self.settings, self.geometry, self.head), dec.seed, dec.k
+        plan = plan_model(self.mesh, self.placement.matrix, self.settings, self.geometry,
+                          self.head, dec, self.planar, self.build_volume)
+        if plan.decomposition is not None and not self.runners_up:
+            self.runners_up = list(plan.decomposition.runners_up)
+        return plan, None if self.planar else (0 if dec is None else dec.seed), None
+
+    def _finish(self, mesh: trimesh.Trimesh, plan: PrintPlan,
+                index: Future[ModelIndex] | None, timings: dict[str, float], t0: float,
+                seed: int | None, stage: Callable[[str], None] | None = None
+                ) -> Try[SliceResult]:
+        return _finish(mesh, plan, self.settings, self.setup, index, timings, t0,
+                       self.keep_plan, self.name, seed, self.policy, judge=False,
+                       stage=stage)
 
 
 def _reporter(progress: Progress | None) -> Callable[[str], None]:
@@ -386,96 +500,24 @@ def _with_grid(index: Future[ModelIndex], settings: ProcessSettings) -> ModelInd
     return model
 
 
-@dataclass
-class _Try:
-    """One plan's file: the result, its replay report (None unchecked) and the plan."""
-
-    result: SliceResult
-    report: ReplayReport | None
-    plan: PrintPlan
-
-    @property
-    def over_air(self) -> int:
-        """Wall layers over air (what a file is refused for)."""
-        return 0 if self.report is None else self.report.wall_layers_over_air
-
-    def rank(self) -> tuple[int, int, float]:
-        """Fewer wall layers over air, then fewer unsupported wall layers, then more walls
-        held."""
-        if self.report is None:
-            return (0, 0, 0.0)
-        return (self.over_air, len(self.report.unsupported_wall_layers),
-                -self.report.wall_supported)
-
-
-def _leaned_instead(error: OverhangError, again: Callable[[LeanHints], _Try]) -> _Try:
-    """The first leaning try, for a part whose upright try printed a layer in the air;
-    ``error`` again when that fails too."""
-    try:
-        return again(NO_HINTS)
-    except (SliceError, SlicingError) as exc:
-        log.info("leaning after a layer in the air failed: %s", exc)
-        raise error from None
-
-
-def _repaired(first: _Try, again: Callable[[LeanHints], _Try] | None,
-              timings: dict[str, float], rounds: int | None = None, done: int = 0) -> _Try:
-    """The closed loop: while the best try so far has wall layers over air, plan again
-    with the root's layers leaning (:mod:`slicer.paths.upright`) and hints at the
-    unsupported walls of every leaning try (:class:`~slicer.paths.LeanHints`: it leans
-    harder there; the first lean takes none, the upright try's misses are not its own), at
-    most ``rounds`` times (default :data:`REPAIR_ROUNDS`); the best try (:meth:`_Try.rank`)
-    is kept. A try that fails outright (a collision, a layer in the air, a plane the head
-    cannot clear), or a hinted one no better than the best, ends the loop. The rounds'
-    seconds are ``timings["repair"]`` and their number ``timings["repair_rounds"]``;
-    ``done`` rounds were taken before (``first`` is then a leaning try)."""
-    best = last = first
-    hints = NO_HINTS
-    t0 = time.perf_counter()
-    rounds = REPAIR_ROUNDS if rounds is None else rounds
-    while again is not None and done < rounds and best.over_air and _misses(last).size:
-        if done:
-            hints = hints.more(_misses(last))
-        done += 1
-        try:
-            last = again(hints)
-        except (SliceError, SlicingError) as exc:
-            log.info("repair round %d failed: %s", done, exc)
-            break
-        log.info("repair round %d: %d wall layers over air (best so far %d)", done,
-                 last.over_air, best.over_air)
-        if last.rank() >= best.rank() and done > 1:
-            break  # hints that bring nothing: more of them would not either
-        if last.rank() < best.rank():
-            best = last
-    if done:
-        timings["repair"] = timings.get("repair", 0.0) + time.perf_counter() - t0
-        timings["repair_rounds"] = float(done)
-        best.result.timings.update({k: timings[k] for k in ("repair", "repair_rounds")})
-    return best
-
-
-def _misses(attempt: _Try) -> np.ndarray:
-    """The try's unsupported wall samples (platform frame), (k, 3)."""
+def _judged(attempt: Try[SliceResult], policy: OverhangPolicy, last_seed: int | None
+            ) -> SliceResult:
+    """The kept try's result with the decomposition seed that planned it, refused
+    (:class:`UnsupportedWallsError`) or warned about as ``policy`` says when it has wall
+    layers over air (:func:`walls_verdict`; its advice names the seed after ``last_seed``,
+    the last one the closed loop could have tried)."""
+    result = replace(attempt.result, seed=attempt.seed, parts=attempt.parts)
     if attempt.report is None:
-        return np.zeros((0, 3))
-    return np.asarray(attempt.report.unsupported_walls.p, dtype=float).reshape(-1, 3)
-
-
-def _judged(attempt: _Try, seed: int | None, policy: OverhangPolicy) -> SliceResult:
-    """The kept try's result, refused (:class:`UnsupportedWallsError`) or warned about as
-    ``policy`` says when it has wall layers over air (:func:`walls_verdict`)."""
-    if attempt.report is None:
-        return attempt.result
-    warning = walls_verdict(attempt.report, attempt.plan, seed, policy)
-    return replace(attempt.result, warning=warning)
+        return result
+    warning = walls_verdict(attempt.report, attempt.plan, last_seed, policy)
+    return replace(result, warning=warning)
 
 
 def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
             setup: MachineSetup, index: Future[ModelIndex] | None, timings: dict[str, float],
             t0: float, keep_plan: bool, name: str = "<mesh>", seed: int | None = None,
             policy: OverhangPolicy = OverhangPolicy(), judge: bool = True,
-            stage: Callable[[str], None] | None = None) -> _Try:
+            stage: Callable[[str], None] | None = None) -> Try[SliceResult]:
     """G-code for ``plan``, its envelope check and, when ``index`` is given, its replay check.
 
     ``seed`` is the decomposition's (``None`` for the planar control), for the advice of a
@@ -510,7 +552,7 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
                          time.perf_counter() - t0, plan if keep_plan else None,
                          walls=None if report is None else report.unsupported_walls,
                          warning=warning)
-    return _Try(result, report, plan)
+    return Try(result, report, plan, seed)
 
 
 def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:

@@ -157,6 +157,11 @@ def _summary(r: Any, out: Path, seconds: float) -> None:
         print(f"placed turned {turned:.0f}° from the file's orientation: the part's own "
               "bottom has no flat base to stand on, so it stands on its largest flat face")
     print(f"sub-parts {r.subparts}, layers {r.layers}, local thickness {lo:.3f}–{hi:.3f} mm")
+    tried = int(r.timings.get("alternatives_tried", 0))
+    if tried and r.seed is not None:  # the closed loop tried other decompositions
+        again = f"--seed {r.seed}" + (f" --parts {r.parts}" if r.parts else "")
+        print(f"decomposition seed {r.seed}, the best of {tried + 1} decompositions tried "
+              f"({again} repeats it)")
     print(f"filament {est['filament_mm']:.0f} mm ({est['mass_g']:.1f} g), "
           f"time {_hms(float(est['time_s']))} ({est['time_s']:.0f} s)")
     if rep:
@@ -183,16 +188,31 @@ def _turned_degrees(lines: list[str]) -> float:
     return 0.0
 
 
+COUNTS = {"repair": ("repair_rounds", "round"), "alternatives": ("alternatives_tried", "tried")}
+"""Stages of the closed loop, with the count each comes with: ``repair 7.66 (2 rounds)``."""
+
+
 def _stages(timings: dict[str, float]) -> str:
     """The top-level stages in pipeline order; the text is formatted beside the replay."""
     order = ("load", "plan", "gcode", "read", "replay")
+    counts = {key for key, _ in COUNTS.values()}
     out = [f"{k} {timings[k]:.2f}" for k in order if k in timings]
-    out += [f"{k} {v:.2f}" for k, v in timings.items()
-            if "." not in k and k not in order and k != "text"]
+    out += [_stage(k, v, timings) for k, v in timings.items()
+            if "." not in k and k not in order and k != "text" and k not in counts]
     if "text" in timings:
         out.append(f"text {timings['text']:.2f} beside the replay" if "replay" in timings
                    else f"text {timings['text']:.2f}")
     return ", ".join(out)
+
+
+def _stage(name: str, seconds: float, timings: dict[str, float]) -> str:
+    """``name seconds``, and its count in parentheses for a stage of the closed loop."""
+    if name not in COUNTS or COUNTS[name][0] not in timings:
+        return f"{name} {seconds:.2f}"
+    key, word = COUNTS[name]
+    n = int(timings[key])
+    plural = "s" if n != 1 and word == "round" else ""
+    return f"{name} {seconds:.2f} ({n} {word}{plural})"
 
 
 def _hms(s: float) -> str:

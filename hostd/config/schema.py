@@ -50,7 +50,8 @@ SCHEMA: dict[str, dict[str, Field]] = {
         "platform_radius": Number("Radius of the round build platform, mm.", 150.0, lo=10,
                                   hi=1000),
         "linearize_tolerance": Number(
-            "Largest tool-tip deviation allowed when A/C move with a straight line, mm.",
+            "Largest tool-tip deviation allowed when A/C move with a straight line, and "
+            "where the slicer merges short moves of a path into longer ones, mm.",
             0.01, lo=0.0005, hi=1.0),
         "nozzle_diameter": Number("Nozzle diameter, mm.", 0.4, lo=0.1, hi=2.0),
         "filament_diameter": Number("Filament diameter, mm.", 1.75, lo=1.0, hi=3.5),

@@ -118,11 +118,12 @@ def decompose_on_bases(mesh: trimesh.Trimesh, settings: DecomposeSettings,
     dec = best.result
     note = (_turned_note(first, best) if best is not first
             else _stayed_note(first, tried[1:], larger, rotation))
-    dec.base = BaseChoice(best.base.area, best.normal, best.turn, note,
-                          tuple(o.line() for o in tried))
+    chosen = BaseChoice(best.base.area, best.normal, best.turn, note,
+                        tuple(o.line() for o in tried))
+    _set_base(dec, chosen)
     dec.timings = {**dec.timings, "other_bases": time.perf_counter() - t0
                    - sum(dec.timings.values())}
-    _log(dec.base)
+    _log(chosen)
     return dec
 
 
@@ -195,9 +196,16 @@ def _kept(first: _Outcome, larger: list[FlatBase], rotation: np.ndarray) -> Deco
                                  "the slicer tries it")
     dec = first.result
     note = None if hint is None else f"{hint}: turn the part to stand on it for a steadier print"
-    dec.base = BaseChoice(first.base.area, first.normal, None, note, (first.line(),))
-    _log(dec.base)
+    base = BaseChoice(first.base.area, first.normal, None, note, (first.line(),))
+    _set_base(dec, base)
+    _log(base)
     return dec
+
+
+def _set_base(dec: Decomposition, base: BaseChoice) -> None:
+    """``dec`` and its runners-up stand on ``base``."""
+    for one in (dec, *dec.runners_up):
+        one.base = base
 
 
 def _turned_note(first: _Outcome, best: _Outcome) -> str:

@@ -73,6 +73,10 @@ class RootRegionError(DecompositionError):
         self.root, self.regions = root, regions
 
 
+RUNNERS_UP = 2
+"""Valid attempts kept beside the best (:attr:`Decomposition.runners_up`): as many as the
+closed loop tries (``slicer.repair.ALTERNATIVES``)."""
+
 @dataclass(frozen=True)
 class DecomposeSettings:
     """Knobs of the decomposition (config ``decompose.*``)."""
@@ -163,6 +167,9 @@ class Decomposition:
     attempts: list[str] = field(default_factory=list)
     overhang: list[Overhang] = field(default_factory=list)
     base: BaseChoice | None = None
+    runners_up: list[Decomposition] = field(default_factory=list, repr=False)
+    """The other valid attempts of :func:`decompose` within the refusal threshold, least
+    overhang first (another try of the closed loop, ``slicer.repair``, at no new cost)."""
 
     @property
     def overhang_deg(self) -> float:
@@ -279,10 +286,13 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
         more = len(tried) - 1
         raise DecompositionError(str(first_error) + (
             f" (and {more} further seed{'s' if more != 1 else ''} refused too)" if more else ""))
-    best = min(results, key=lambda d: (round(d.overhang_area, 1), len(d.subparts)))
-    best.placement = np.asarray(placement, dtype=float)
-    best.attempts = tried
+    ranked = sorted(results, key=lambda d: (round(d.overhang_area, 1), len(d.subparts)))
+    best = ranked[0]
+    for dec in ranked:
+        dec.placement = np.asarray(placement, dtype=float)
+        dec.attempts = tried
     best.timings = clock.laps
+    best.runners_up = [d for d in ranked[1:] if not _over_limit(d, area)][:RUNNERS_UP]
     for line in tried:
         log.debug("decompose attempt: %s", line)
     _refuse_overhang(best, area)
@@ -339,12 +349,20 @@ def _attempt(mesh: trimesh.Trimesh, settings: DecomposeSettings, seed: int, k: i
                          part.count, part.k_requested, part, groups, seed, [], over)
 
 
-def _refuse_overhang(dec: Decomposition, area: float) -> None:
-    """Raise when a sub-part of ``dec`` overhangs more than the refusal threshold."""
+def _over_limit(dec: Decomposition, area: float) -> bool:
+    """Whether a sub-part of ``dec`` overhangs more than the refusal threshold."""
     limit = max(TOL.overhang_refuse_abs, TOL.overhang_refuse_rel * area)
     worst = max(dec.overhang, key=lambda o: o.area)
-    if worst.area <= limit or worst.point is None:
+    return worst.area > limit and worst.point is not None
+
+
+def _refuse_overhang(dec: Decomposition, area: float) -> None:
+    """Raise when a sub-part of ``dec`` overhangs more than the refusal threshold."""
+    if not _over_limit(dec, area):
         return
+    limit = max(TOL.overhang_refuse_abs, TOL.overhang_refuse_rel * area)
+    worst = max(dec.overhang, key=lambda o: o.area)
+    assert worst.point is not None
     where = "[" + ", ".join(f"{x:.1f}" for x in worst.point) + "]"
     tries = len(dec.attempts)
     raise DecompositionError(

@@ -9,7 +9,8 @@
 * :mod:`~slicer.gcode.transitions`: the moves between sub-parts (lift, rotate, travel,
   approach) clear of the part and the platform.
 * :mod:`~slicer.gcode.extrusions`: every path as one run of vertices, with its filament and
-  joint poses.
+  joint poses; :mod:`~slicer.gcode.merge`: the vertices a longer move passes within the
+  linearisation tolerance, left out.
 * :mod:`~slicer.gcode.program`: a program under construction (comment lines and numeric move
   blocks); :mod:`~slicer.gcode.format`: move lines as text, the whole file at once.
 * :mod:`~slicer.gcode.estimate`: filament and time of the moves.
@@ -27,6 +28,7 @@ from importlib import import_module
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from slicer.gcode.estimate import MotionLimits, estimate_moves
     from slicer.gcode.program import E
     from slicer.gcode.reader import (
         GcodeFormatError,
@@ -35,7 +37,14 @@ if TYPE_CHECKING:
         parse_words,
         read_gcode,
     )
-    from slicer.gcode.writer import Draft, GcodeError, MachineSetup, draft, write_gcode
+    from slicer.gcode.writer import (
+        Draft,
+        GcodeError,
+        MachineSetup,
+        draft,
+        filament_area,
+        write_gcode,
+    )
 
 __all__ = [
     "Draft",
@@ -43,8 +52,11 @@ __all__ = [
     "GcodeError",
     "GcodeFormatError",
     "MachineSetup",
+    "MotionLimits",
     "ParsedGcode",
     "draft",
+    "estimate_moves",
+    "filament_area",
     "parse_lines",
     "parse_words",
     "read_gcode",
@@ -52,9 +64,10 @@ __all__ = [
 ]
 
 _HOMES = {
+    "estimate": ("MotionLimits", "estimate_moves"),
     "program": ("E",),
     "reader": ("GcodeFormatError", "ParsedGcode", "parse_lines", "parse_words", "read_gcode"),
-    "writer": ("Draft", "GcodeError", "MachineSetup", "draft", "write_gcode"),
+    "writer": ("Draft", "GcodeError", "MachineSetup", "draft", "filament_area", "write_gcode"),
 }
 """The module of every name above (the imports for type checkers say the same)."""
 _MODULE_OF = {name: module for module, names in _HOMES.items() for name in names}

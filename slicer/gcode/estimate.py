@@ -173,3 +173,37 @@ def estimate_program(rows: np.ndarray, limits: MotionLimits, area: float,
                     "time_s": round(float(times[m].sum()), 1)})
     total = float(fil.sum())
     return Estimate(total, total * area * density, float(times.sum()), per)
+
+
+def estimate_moves(start: np.ndarray, end: np.ndarray, feed: np.ndarray, e: np.ndarray,
+                   g: np.ndarray, limits: MotionLimits, area: float, density: float) -> Estimate:
+    """Estimate of a file's moves as :mod:`slicer.gcode.reader` gives them, any slicer's.
+
+    The same time model and filament count as :func:`estimate_program`, for a benchmark
+    that compares files of several slicers with one estimator.
+
+    Parameters
+    ----------
+    start, end : (n, 5) float
+        Joint poses [X, Y, Z, A, C] before and after each move (NaN: not known yet; a file
+        without A and C words keeps them NaN: no table motion).
+    feed : (n,) float
+        mm/s; NaN before the file's first F runs at ``limits.max_velocity``.
+    e : (n,) float
+        Relative filament per move, mm.
+    g : (n,) int
+        0 travel, 1 extrusion.
+    limits : MotionLimits
+    area, density : float
+        Filament cross-section (mm²) and the material's density (g/mm³).
+
+    Returns
+    -------
+    Estimate
+        Totals only (no sub-parts).
+    """
+    feed = np.where(np.isnan(feed), limits.max_velocity, feed)
+    times = move_times(np.asarray(start, dtype=float), np.asarray(end, dtype=float), feed,
+                       np.asarray(e, dtype=float), np.asarray(g, dtype=int), limits)
+    total = float(deposited(start, end, e).sum())
+    return Estimate(total, total * area * density, float(times.sum()))

@@ -41,6 +41,7 @@ from slicer.gcode.markers import (
     TransitionPayload,
     marker_line,
 )
+from slicer.gcode.merge import kept_vertices, merged_filament
 from slicer.gcode.program import AC_DECIMALS, XYZ_DECIMALS, MoveWords, Program
 from slicer.gcode.transitions import obstacle_hull, plan_transition, platform_rim, safe_height_z
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
@@ -164,6 +165,9 @@ class _Writer:
         layers = [la for sp in plan.subparts for la in sp.layers]
         self.ext = Extrusions.of([p for la in layers for p in la.paths], self.area)
         self.poses = joint_poses(self.ext, layers, machine.geometry)
+        self.keep = kept_vertices(self.ext.points, self.ext.e, self.ext.start,
+                                  settings.linearize_tolerance)
+        self.e = merged_filament(self.ext.e, self.keep)
         self.next_path = 0
         self.hull = obstacle_hull(_all_points(plan))
         self.rim = platform_rim(machine.platform_radius)
@@ -233,7 +237,8 @@ class _Writer:
             if not _same_angles(self.prog.pose, layer.a, layer.c):
                 self.reorient(layer, ext.points[s])
             self.travel_to(self.poses[s, :3])
-            poses, e = printed_moves(self.prog.pose, self.poses[s + 1:t], ext.e[s + 1:t])
+            kept = s + 1 + np.flatnonzero(self.keep[s + 1:t])
+            poses, e = printed_moves(self.prog.pose, self.poses[kept], self.e[kept])
             self.prog.moves(poses, e, path.speed, 1)
 
     # -- sub-parts -------------------------------------------------------------------------

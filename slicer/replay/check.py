@@ -9,7 +9,10 @@ sample, one line width apart along a path, is *judged*. Reported (all shares in 
 * ``inside``: judged samples inside the model (or within 0.1 w of its surface);
 * ``coverage`` / ``shell_coverage``: model volume reached by the beads (:mod:`.coverage`);
 * ``supported``: judged samples with support beneath them or bridging sparse infill, and the
-  wall figures of the strict rule (:mod:`.support`);
+  wall figures (issue 8): wall samples held by the strict rule (:mod:`.support`) or bridging
+  sparse infill inside the part, which is not an overhang, and the layers with more than 5 %
+  of their wall samples held by neither (``unsupported_wall_layers``, the layers *over air*:
+  ``wall_layers``);
 * ``collisions``: head samples that hit printed material or the platform
   (:mod:`.collide`).
 
@@ -78,6 +81,9 @@ BYTES_PER_HELD = 96  # per sample of a file small enough to be held (stream.HOLD
 BYTES_PER_BEAD = 80  # per bead of the collision check's material (one per 0.5 mm voxel)
 BEADS_PER_MM3 = 16  # of deposited volume, at most (measured 9-14: the sample parts, boxes)
 BYTES_PER_MOVE = 64
+WALLS_HELD = 0.998
+"""Share of wall samples a support-free file holds at least (:attr:`ReplayReport.support_free`,
+with no unsupported wall layer: issue 8's wall rule)."""
 
 
 class ReplayBudgetError(SlicingError):
@@ -109,9 +115,9 @@ class ReplayReport:
     worst_layer_run_mm: float = 0.0
     worst_layer: dict[str, Any] | None = None
     overhang_layers: list[dict[str, Any]] = field(default_factory=list)
-    # the wall layers over air (unsupported_wall_layers less the wall points that bridge
-    # sparse infill) described, worst first (at most MAX_WALL_LAYERS), and their unsupported
-    # wall samples in the platform frame (not in to_dict)
+    # the wall layers over air (those of unsupported_wall_layers: wall points that bridge
+    # sparse infill held) described, worst first (at most MAX_WALL_LAYERS), and their
+    # unsupported wall samples in the platform frame (not in to_dict)
     wall_layers: list[WallLayer] = field(default_factory=list)
     wall_layers_over_air: int = 0
     unsupported_walls: WallSamples = field(default_factory=WallSamples.empty, repr=False,
@@ -124,6 +130,14 @@ class ReplayReport:
     def ok(self) -> bool:
         """Whether the file may be emitted (no collisions, no layer printed in the air)."""
         return self.collisions == 0 and not self.overhang_layers
+
+    @property
+    def support_free(self) -> bool:
+        """Whether every wall is held by issue 8's wall rule: at least :data:`WALLS_HELD` of
+        the wall samples held (strictly supported, or bridging sparse infill) and no wall
+        layer with more than its unsupported share (what the closed loop aims at; a file
+        with such layers is refused unless the caller allows them)."""
+        return self.wall_supported >= WALLS_HELD and not self.unsupported_wall_layers
 
     def to_dict(self) -> dict[str, object]:
         """The report as a plain dict, without ``unsupported_walls`` (arrays)."""
@@ -273,7 +287,7 @@ def _report(parsed: ParsedGcode, dep: Deposits, fig: LayerFigures, inside: int,
         coverage=cov[0], shell_coverage=cov[1], supported=fig.supported / n,
         bridged=fig.bridged / n, wall_points=fig.wall,
         wall_supported=fig.wall_supported / fig.wall if fig.wall else 1.0,
-        unsupported_wall_layers=[_name(v) for v in fig.strict], collisions=collisions,
+        unsupported_wall_layers=[_name(v) for v in fig.over_air], collisions=collisions,
         collision_messages=messages,
         worst_layer_unsupported=0.0 if worst_d is None else worst_d["share"],
         worst_layer_run_mm=0.0 if worst_d is None else worst_d["run_mm"],

@@ -131,11 +131,10 @@ class LayerFigures:
     ----------
     judged, supported, bridged, wall, wall_supported : int
         Judged samples; those supported (strictly or bridging), bridging only, on the
-        model's walls, and the walls' strictly supported.
+        model's walls, and the walls' held (strictly or bridging sparse infill, which issue 8
+        does not count as an overhang).
     layers : LayerSupport
         Every printed layer's unsupported extrusion.
-    strict : list of WallLayer
-        The unsupported wall layers (strict rule), in print order.
     over_air : list of WallLayer
         The wall layers over air (bridging counted as support), in print order.
     samples : WallSamples
@@ -148,7 +147,6 @@ class LayerFigures:
     wall: int = 0
     wall_supported: int = 0
     layers: LayerSupport = field(default_factory=lambda: LayerSupport.joined([]))
-    strict: list[WallLayer] = field(default_factory=list)
     over_air: list[WallLayer] = field(default_factory=list)
     samples: WallSamples = field(default_factory=WallSamples.empty)
 
@@ -179,11 +177,10 @@ def layer_pass(dep: Deposits, model: ModelIndex, ok: np.ndarray, walls: np.ndarr
         out.supported += int(good.sum())
         out.bridged += int((bridge & ~ok_c).sum())
         out.wall += int(wall.sum())
-        out.wall_supported += int(ok_c[wall].sum())
+        out.wall_supported += int(good[wall].sum())
         per_layer.append(layer_support(s, judged, good, rules.line_width))
         points = WallLayerPoints(s.p[judged], s.seq[judged], s.subpart[judged],
                                  s.layer[judged], wall, ok_c)
-        out.strict += wall_layers(points, None, keep=False)[0]
         air, air_samples = wall_layers(replace(points, supported=good), to_part)
         out.over_air += air
         samples.append(WallSamples.joined([air_samples]))  # thinned as it goes

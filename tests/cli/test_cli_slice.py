@@ -123,3 +123,13 @@ def test_a_pipe_upside_down_slices_standing_on_its_base(tmp_path, capsys):
     assert matrix[:3, :3] @ [0.0, 0.0, 1.0] == pytest.approx([0.0, 0.0, -1.0])
     placed = trimesh.transform_points(mesh.vertices, matrix)
     assert placed[:, 2].min() == pytest.approx(0.0, abs=1e-6)
+
+
+def test_the_seconds_line_gives_the_closed_loops_stages_with_their_counts():
+    from hostd.cli.cmd_slice import _stages
+
+    line = _stages({"load": 0.1, "plan": 2.0, "gcode": 0.5, "replay": 1.0, "text": 0.2,
+                    "repair": 7.66, "repair_rounds": 1.0, "alternatives": 48.4,
+                    "alternatives_tried": 2.0, "plan.lean": 0.9})
+    assert line == ("load 0.10, plan 2.00, gcode 0.50, replay 1.00, repair 7.66 (1 round), "
+                    "alternatives 48.40 (2 tried), text 0.20 beside the replay")

@@ -14,6 +14,7 @@ import pytest
 
 from hostd.cli.main import build_parser, main
 from slicer.mesh.samples import branched_pipe
+from slicer.repair import ALTERNATIVES  # seeds the closed loop tries after the first
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +50,8 @@ def test_a_file_with_unsupported_walls_is_refused_and_its_preview_marks_them(tee
     assert re.match(rf"hostctl: {re.escape(str(tee))}: replay found \d+ unsupported wall "
                     r"layers over air .*; refusing to write the file: worst sub-part \d+ layer "
                     r"\d+, [\d.]+% of its \d+ wall points unsupported, around \[.*\] mm \(part "
-                    r"frame\); try --seed 1 \(or another seed\), another --parts \(the coarse "
+                    rf"frame\); try --seed {ALTERNATIVES + 1} \(or another seed\), another "
+                    r"--parts \(the coarse "
                     r"part count\) or --allow-overhang to write it as it is$", err), err
     assert set(re.findall(r"--[a-z-]+", err)) <= _slice_options()
     assert _red_share(png) > 1e-4  # the preview is drawn, the failing walls in red

@@ -14,6 +14,7 @@ from hostd_harness import DaemonProc, hostctl
 
 from hostd.cli.main import build_parser
 from slicer.mesh.samples import branched_pipe
+from slicer.repair import ALTERNATIVES  # seeds the closed loop tries after the first
 
 pytestmark = [pytest.mark.asyncio, pytest.mark.slow]
 
@@ -41,7 +42,8 @@ async def test_a_slice_over_air_fails_unless_the_job_allows_it(tmp_path):
             assert re.match(r"hostctl: job 1 failed: slicing failed: tee\.stl: replay found \d+ "
                             r"unsupported wall layers over air .*; refusing to write the file: "
                             r"worst sub-part \d+ layer \d+, [\d.]+% of its \d+ wall points "
-                            r"unsupported, around \[.*\] mm \(part frame\); try --seed 1 \(or "
+                            r"unsupported, around \[.*\] mm \(part frame\); "
+                            rf"try --seed {ALTERNATIVES + 1} \(or "
                             r"another seed\), another --parts \(the coarse part count\) or "
                             r"--allow-overhang to write it as it is$", line), line
             assert set(re.findall(r"--[a-z-]+", line)) <= _print_options()

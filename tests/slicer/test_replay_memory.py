@@ -200,7 +200,7 @@ def test_by_tiles_and_chunks_the_figures_are_those_of_all_samples_at_once(pipe2_
     whole = replay_check(parsed, mesh)
     monkeypatch.setattr(replay_stream, "HOLD_SAMPLES", 0)
     monkeypatch.setattr(replay_stream, "TILE_SAMPLES", 40_000)
-    monkeypatch.setattr(replay_stream, "CHUNK_SAMPLES", 30_000)
+    monkeypatch.setattr(replay_stream, "CHUNK_SAMPLES", 25_000)
     monkeypatch.setattr(replay_passes, "TIP_CHUNK", 20_000)
     monkeypatch.setattr(replay_collide, "CHUNK", 25_000)
     cut = replay_check(parsed, mesh)
@@ -238,7 +238,7 @@ def test_the_tiles_own_every_sample_once_and_their_halo_holds_the_searches(pipe2
 
 @pytest.mark.slow
 def test_a_150_cm3_hollow_fitting_is_checked_within_the_budget():
-    """The hollow cross (50 mm pipes, 152 cm³) at 0.2 mm: 7.5 M samples, which the check
+    """The hollow cross (50 mm pipes, 152 cm³) at 0.2 mm: 7 M samples, which the check
     once refused (about 1.8 GiB with its model index). By tiles and chunks its estimate and
     the index fit the 1 GiB budget, and the slice's replay runs to its figures."""
     from slicer.mesh.samples import pipe_cross
@@ -250,7 +250,8 @@ def test_a_150_cm3_hollow_fitting_is_checked_within_the_budget():
     res = slice_model(mesh, ProcessSettings(), GEO, Printhead.default(), allow_overhang=True,
                       repair_rounds=0)  # the check's memory, not the closed loop's tries
     rep = res.replay
-    assert rep["points"] > 7_000_000 and rep["collisions"] == 0
+    # 7.5 M samples before the writer merged short moves (slicer/gcode/merge.py), 7.0 M after
+    assert rep["points"] > 6_500_000 and rep["collisions"] == 0
     assert rep["inside"] > 0.99 and rep["coverage"] > 0.95
     parsed = parse_lines(res.lines)
     index = model_index(mesh, ProcessSettings().line_width, np.array(

@@ -139,8 +139,10 @@ def test_kinematic_round_trip_of_a_real_plan(five_axis_pipe2):
     planned = np.concatenate(planned)
     back = planned @ np.linalg.inv(place[:3, :3]).T - place[:3, 3] @ np.linalg.inv(
         place[:3, :3]).T
-    # segments shorter than the printed precision collapse: compare where moves survived
-    assert len(stl) <= len(back) and len(stl) > 0.99 * len(back)
+    # segments shorter than the printed precision collapse and vertices that a longer move
+    # passes within the linearisation tolerance are left out (slicer/gcode/merge.py): every
+    # move written ends at a planned vertex
+    assert 0 < len(stl) <= len(back)
     from scipy.spatial import cKDTree
     d, _ = cKDTree(back).query(stl)
     assert d.max() < 0.01

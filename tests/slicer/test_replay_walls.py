@@ -20,6 +20,7 @@ from slicer.advice import SLICE_OPTIONS, walls_message
 from slicer.mesh.samples import branched_pipe
 from slicer.pipeline import SliceResult, UnsupportedWallsError, slice_model
 from slicer.printhead import Printhead
+from slicer.repair import ALTERNATIVES
 from slicer.replay.geometry import ModelIndex
 from slicer.replay.support import BAD_LAYER_SHARE
 from slicer.replay.walls import (
@@ -79,9 +80,10 @@ def test_the_refusal_is_one_line_naming_the_worst_layer_and_what_to_try(refused,
     assert (f"refusing to write the file: worst sub-part {worst['subpart']} layer "
             f"{worst['layer']}, {100 * worst['share']:.1f}% of its {worst['wall_points']} wall "
             "points unsupported, around [") in msg
-    assert msg.endswith("mm (part frame); try decompose.seed 1 (or another seed), another "
-                        "decompose.parts (the coarse part count) or allow_overhang=True to "
-                        "write it as it is")
+    # the seed after those the closed loop tried (seed 0, then ALTERNATIVES more)
+    assert msg.endswith(f"mm (part frame); try decompose.seed {ALTERNATIVES + 1} (or another "
+                        "seed), another decompose.parts (the coarse part count) or "
+                        "allow_overhang=True to write it as it is")
 
 
 def test_the_refusal_names_a_point_of_the_branch_underside_in_the_stl_frame(refused):

@@ -1,0 +1,176 @@
+"""The closed loop: plan again where the replay finds walls that are not held.
+
+:func:`slicer.pipeline.slice_model` hands this module callables that plan, write and check
+one file (a :class:`Try`); here they are tried in turn and the best file is kept:
+
+1. the paper's try (the root upright), then up to :data:`REPAIR_ROUNDS` tries with the root's
+   layers leaning (:mod:`slicer.paths.upright`), each after the first hinted at the
+   unsupported walls of the last (:func:`repaired`);
+2. when no lean of that decomposition holds every wall, **other decompositions**, up to
+   :data:`ALTERNATIVES`: the decomposition's runners-up (its other valid attempts, made
+   already), then the part decomposed with the next seeds (another k-means partition, so
+   other groups, planes and build order), each tried upright and leaning for at most
+   :data:`ALTERNATIVE_ROUNDS` rounds (:func:`best_decomposition`). A seed whose plan fails
+   outright (the planner's veto: no plane clears the printed part or the platform) is
+   passed over when another one plans.
+
+Beyond the paper, which decomposes once and never looks back. The tries are ranked by
+:meth:`Try.rank`: fewest wall layers over air (what a file is refused for), then fewest
+unsupported wall layers by the strict rule, then most walls held; the loop stops as soon as
+a try is support-free by the strict rule (:attr:`ReplayReport.support_free`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Generic, TypeVar
+
+import numpy as np
+
+from slicer.paths import NO_HINTS, LeanHints
+from slicer.plan import PrintPlan
+from slicer.replay import ReplayReport
+
+log = logging.getLogger(__name__)
+R = TypeVar("R")
+
+REPAIR_ROUNDS = 3
+"""Leaning tries of one decomposition at most (the first decomposition's)."""
+ALTERNATIVES = 2
+"""Other decomposition seeds tried when the first decomposition holds no file support-free."""
+ALTERNATIVE_ROUNDS = 1
+"""Leaning tries of each other decomposition at most."""
+
+
+class Refused(Exception):
+    """A try that produced no file: the caller's refusal (one line), kept to be raised when
+    no try produces one."""
+
+
+@dataclass
+class Try(Generic[R]):
+    """One plan's file: the result (the caller's type), its replay report (None unchecked),
+    the plan, and the decomposition seed (None: planar) and K (None: as configured) that
+    decompose it again."""
+
+    result: R
+    report: ReplayReport | None
+    plan: PrintPlan
+    seed: int | None = None
+    parts: int | None = None
+
+    @property
+    def over_air(self) -> int:
+        """Wall layers over air (what a file is refused for)."""
+        return 0 if self.report is None else self.report.wall_layers_over_air
+
+    @property
+    def support_free(self) -> bool:
+        """Whether the replay holds every wall by the strict rule (unchecked: taken so)."""
+        return self.report is None or self.report.support_free
+
+    def rank(self) -> tuple[int, int, float]:
+        """Fewer wall layers over air, then fewer unsupported wall layers, then more walls
+        held."""
+        if self.report is None:
+            return (0, 0, 0.0)
+        return (self.over_air, len(self.report.unsupported_wall_layers),
+                -self.report.wall_supported)
+
+    def misses(self) -> np.ndarray:
+        """The try's unsupported wall samples (platform frame), (k, 3)."""
+        if self.report is None:
+            return np.zeros((0, 3))
+        return np.asarray(self.report.unsupported_walls.p, dtype=float).reshape(-1, 3)
+
+
+
+
+def leaned_instead(error: Exception, again: Callable[[LeanHints], Try[R]],
+                   failures: tuple[type[Exception], ...]) -> Try[R]:
+    """The first leaning try, for a part whose upright try failed (a layer in the air);
+    ``error`` again when that fails too (one of ``failures``)."""
+    try:
+        return again(NO_HINTS)
+    except failures as exc:
+        log.info("leaning after %s failed: %s", error, exc)
+        raise error from None
+
+
+def repaired(first: Try[R], again: Callable[[LeanHints], Try[R]] | None,
+             failures: tuple[type[Exception], ...], rounds: int = REPAIR_ROUNDS,
+             done: int = 0) -> tuple[Try[R], int]:
+    """While the best try so far is not support-free, plan again with the root's layers
+    leaning (:mod:`slicer.paths.upright`) and hints at the unsupported walls of every
+    leaning try (:class:`~slicer.paths.LeanHints`: it leans harder there; the first lean
+    takes none, the upright try's misses are not its own), at most ``rounds`` tries in all
+    (``done`` taken before: ``first`` is then a leaning try). A try that fails outright
+    (one of ``failures``), or a hinted one no better than the best, ends the loop.
+
+    Returns
+    -------
+    (Try, int)
+        The best try (:meth:`Try.rank`) and the rounds taken.
+    """
+    best = last = first
+    hints = NO_HINTS
+    while (again is not None and done < rounds and not best.support_free
+           and (done == 0 or last.misses().size)):  # a hinted round needs misses
+        if done:
+            hints = hints.more(last.misses())
+        done += 1
+        try:
+            last = again(hints)
+        except failures as exc:
+            log.info("repair round %d failed: %s", done, exc)
+            break
+        log.info("repair round %d: %d wall layers over air (best so far %d)", done,
+                 last.over_air, best.over_air)
+        if last.rank() >= best.rank() and done > 1:
+            break  # hints that bring nothing: more of them would not either
+        if last.rank() < best.rank():
+            best = last
+    return best, done
+
+
+def best_decomposition(decomposed: Callable[[int, int], Try[R]], alternatives: int,
+                       rounds: int, failures: tuple[type[Exception], ...],
+                       timings: dict[str, float]) -> Try[R]:
+    """``decomposed(k, rounds)`` is the best try of the ``k``-th decomposition (0: the one
+    asked for) with at most ``rounds`` leaning tries, and raises one of ``failures`` when it
+    plans no file.
+
+    The first decomposition's best try, or a better one of the next ``alternatives``
+    (tried only while no try is support-free, each with :data:`ALTERNATIVE_ROUNDS` leaning
+    tries at most). The first decomposition's failure is raised when none plans a file;
+    ``timings`` gains ``alternatives`` (seconds) and ``alternatives_tried``."""
+    best: Try[R] | None = None
+    first_error: Exception | None = None
+    try:
+        best = decomposed(0, rounds)
+    except failures as exc:
+        first_error = exc
+    t0, tried = time.perf_counter(), 0
+    for k in range(1, alternatives + 1):
+        if best is not None and best.support_free:
+            break
+        tried += 1
+        try:
+            other = decomposed(k, min(rounds, ALTERNATIVE_ROUNDS))
+        except failures as exc:
+            log.info("decomposition %d failed: %s", k, exc)
+            continue
+        log.info("decomposition %d: %d wall layers over air", k, other.over_air)
+        if best is None or other.rank() < best.rank():
+            best = other
+    if tried:
+        timings["alternatives"] = time.perf_counter() - t0
+        timings["alternatives_tried"] = float(tried)
+    if best is None:
+        assert first_error is not None
+        raise first_error
+    return best
+

@@ -1,0 +1,131 @@
+"""The closed loop's order of tries (slicer.repair), on tries made up for the purpose: which
+are planned, which is kept, what is raised."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+
+from slicer.paths import NO_HINTS, LeanHints, SlicingError
+from slicer.plan import PrintPlan
+from slicer.repair import ALTERNATIVE_ROUNDS, Refused, Try, best_decomposition, repaired
+from slicer.replay import ReplayReport, WallSamples
+
+FAILURES = (SlicingError, Refused)
+
+
+def _report(over_air: int, bad: int, walls: float, misses: int = 3) -> ReplayReport:
+    rep = ReplayReport(
+        moves=1, extruding_moves=1, deposited_mm=1.0, points=1, inside=1.0, coverage=1.0,
+        shell_coverage=1.0, supported=1.0, bridged=0.0, wall_points=100, wall_supported=walls,
+        unsupported_wall_layers=[f"sub-part 0 layer {i}" for i in range(bad)], collisions=0,
+        collision_messages=[], wall_layers_over_air=over_air)
+    rep.unsupported_walls = WallSamples.empty() if not misses else _samples(misses)
+    return rep
+
+
+def _samples(n: int) -> WallSamples:
+    rng = np.random.default_rng(n)
+    return WallSamples(rng.uniform(-10.0, 10.0, (n, 3)), np.zeros(n, np.int32),
+                       np.arange(n, dtype=np.int32), n)
+
+
+def _try(name: str, over_air: int, bad: int, walls: float) -> Try[str]:
+    return Try(name, _report(over_air, bad, walls), PrintPlan.__new__(PrintPlan))
+
+
+@dataclass
+class Script:
+    """Tries handed out in order (an exception is raised instead), and what was asked."""
+
+    tries: list[Try[str] | Exception]
+    asked: list[object] = field(default_factory=list)
+
+    def __call__(self, *args: object) -> Try[str]:
+        self.asked.append(args)
+        got = self.tries.pop(0)
+        if isinstance(got, Exception):
+            raise got
+        return got
+
+
+def test_a_support_free_first_try_is_kept_without_planning_again() -> None:
+    again = Script([])
+    best, done = repaired(_try("upright", 0, 0, 0.999), again, FAILURES)
+    assert (best.result, done, again.asked) == ("upright", 0, [])
+
+
+def test_a_try_short_of_support_free_is_repaired_and_the_better_try_kept() -> None:
+    # no layer over air but one unsupported wall layer: not support-free, the loop goes on
+    again = Script([_try("lean", 0, 0, 0.999)])
+    best, done = repaired(_try("upright", 0, 1, 0.999), again, FAILURES)
+    assert (best.result, done) == ("lean", 1)
+
+
+def test_hints_come_from_the_last_leaning_try_and_a_try_no_better_ends_the_loop() -> None:
+    again = Script([_try("lean", 2, 2, 0.99), _try("hinted", 3, 3, 0.98),
+                    _try("never", 0, 0, 1.0)])
+    best, done = repaired(_try("upright", 5, 5, 0.97), again, FAILURES, rounds=3)
+    assert (best.result, done) == ("lean", 2)
+    first_hints, second_hints = (args[0] for args in again.asked)
+    assert first_hints is NO_HINTS  # the upright try's misses are not a lean's own
+    assert isinstance(second_hints, LeanHints) and second_hints is not NO_HINTS
+
+
+def test_the_first_lean_needs_no_misses_a_hinted_round_does() -> None:
+    # the upright try holds too few walls with no wall layer over air: no samples of it
+    upright = Try("upright", _report(0, 0, 0.997, misses=0), PrintPlan.__new__(PrintPlan))
+    lean = Try("lean", _report(0, 0, 0.996, misses=0), PrintPlan.__new__(PrintPlan))
+    again = Script([lean, _try("never", 0, 0, 1.0)])
+    best, done = repaired(upright, again, FAILURES, rounds=3)
+    assert (best.result, done, len(again.asked)) == ("upright", 1, 1)
+
+
+def test_a_failing_round_ends_the_loop_keeping_the_best_so_far() -> None:
+    again = Script([SlicingError("no plane clears printed part")])
+    best, done = repaired(_try("upright", 1, 1, 0.99), again, FAILURES)
+    assert (best.result, done) == ("upright", 1)
+
+
+def test_other_decompositions_are_tried_only_while_none_is_support_free() -> None:
+    decomposed = Script([_try("seed0", 1, 1, 0.99), _try("seed1", 0, 0, 0.999)])
+    timings: dict[str, float] = {}
+    best = best_decomposition(decomposed, 2, 3, FAILURES, timings)
+    assert best.result == "seed1"
+    assert decomposed.asked == [(0, 3), (1, min(3, ALTERNATIVE_ROUNDS))]
+    assert timings["alternatives_tried"] == 1.0
+
+
+def test_a_support_free_first_decomposition_tries_no_other() -> None:
+    decomposed = Script([_try("seed0", 0, 0, 0.999)])
+    timings: dict[str, float] = {}
+    assert best_decomposition(decomposed, 2, 3, FAILURES, timings).result == "seed0"
+    assert len(decomposed.asked) == 1 and "alternatives_tried" not in timings
+
+
+def test_no_better_alternative_keeps_the_first() -> None:
+    decomposed = Script([_try("seed0", 1, 1, 0.99), _try("seed1", 2, 2, 0.99),
+                         Refused("another decomposition refused")])
+    assert best_decomposition(decomposed, 2, 3, FAILURES, {}).result == "seed0"
+
+
+def test_a_first_decomposition_that_plans_nothing_gives_way_to_one_that_does() -> None:
+    decomposed = Script([SlicingError("sub-part 2, layer 6: no plane clears platform"),
+                         _try("seed1", 1, 1, 0.99), _try("seed2", 0, 2, 0.99)])
+    assert best_decomposition(decomposed, 2, 3, FAILURES, {}).result == "seed2"
+
+
+def test_when_none_plans_the_first_failure_is_raised() -> None:
+    first = SlicingError("sub-part 2, layer 20: no plane clears printed part")
+    decomposed = Script([first, Refused("decomposition refused"), SlicingError("other")])
+    with pytest.raises(SlicingError) as caught:
+        best_decomposition(decomposed, 2, 3, FAILURES, {})
+    assert caught.value is first
+
+
+def test_a_failure_not_listed_stops_at_once() -> None:
+    decomposed = Script([ValueError("a bug"), _try("seed1", 0, 0, 1.0)])
+    with pytest.raises(ValueError, match="a bug"):
+        best_decomposition(decomposed, 2, 3, FAILURES, {})
