@@ -3,6 +3,7 @@
     .venv/bin/python bench/hard_sweep.py                   # the files of shared/models/hard
     .venv/bin/python bench/hard_sweep.py --variants 24     # slicer.mesh.hard_samples 0..23
     .venv/bin/python bench/hard_sweep.py --variants 24 --heights 0.2 --jobs 2
+    .venv/bin/python bench/hard_sweep.py --variants 24 --kinds pipe elbow   # those of 0..23
 
 Every part is sliced as ``hostctl slice`` slices it (``slicer.pipeline.slice_model``, the
 shipped defaults, the retry loop included) at each layer height, and judged by the product's
@@ -94,7 +95,8 @@ def tasks(args: argparse.Namespace) -> list[tuple[str, str, float]]:
 
     if args.variants:
         parts = [(hard_variant(i).kind, f"variant:{i}")
-                 for i in range(args.start, args.start + args.variants)]
+                 for i in range(args.start, args.start + args.variants)
+                 if not args.kinds or hard_variant(i).kind in args.kinds]
     else:
         parts = [("hard", str(p)) for p in sorted(HARD.glob("*.stl"))]
     return [(k, s, t) for k, s in parts for t in args.heights]
@@ -104,6 +106,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--variants", type=int, default=0, help="sweep this many variants")
     ap.add_argument("--start", type=int, default=0, help="first variant index")
+    ap.add_argument("--kinds", nargs="+", default=[],
+                    help="only variants of these classes (pipe, elbow, tree, ball)")
     ap.add_argument("--heights", type=float, nargs="+", default=[0.2, 0.3])
     ap.add_argument("--jobs", type=int, default=2)
     args = ap.parse_args()

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import os
 import re
 import sys
 import threading
@@ -134,6 +135,10 @@ def main() -> None:
             note = f"  E {r['e']}, not {args.lines}: lines lost or run twice" if wrong else ""
             print(f"{r['host']:18} {r['lines_s']:8.1f} {r['wall']:7.2f} {r['corrupted']:7d} "
                   f"{r['resent']:7d} {r['timeouts']:8d}{note}")
+    sys.stdout.flush()
+    # printcore leaves a non-daemon reader thread blocked on the closed pty: without this the
+    # interpreter waits for it forever after the last figure
+    os._exit(0)
 
 
 if __name__ == "__main__":
