@@ -27,7 +27,7 @@ def full_snapshot() -> dict:
                  "lines_withdrawn": 5,
                  "checksum_errors": 2, "timeouts": 1, "reconnects": 0, "window_bytes": 127,
                  "state": "halted", "resets": 1,
-                 "starve_nudges": 4,
+                 "starve_nudges": 4, "resyncs": 2,
                  "ok_rtt": {"histogram": rtt.snapshot()},
                  "temperatures": {"T": {"actual": 209.5, "target": 210.0, "power": 80},
                                   "B": {"actual": 60.1, "target": 60.0, "power": None}}},
