@@ -12,6 +12,11 @@ outcome (``ok``, or the exit status and the last line printed: a refusal is one 
 (another checkout, e.g. ``git worktree add /tmp/base HEAD``) to compare versions; run both
 in turn, not at once: the machine's memory is shared.
 
+``hard`` adds the models of ``shared/models/hard`` made 50k faces as
+``bench/cura_compare.py`` slices them (issue 35's memory goal: under 1.5 GiB each), named
+``h:<model>``; ``--parts hard`` runs only those. A refused model's peak is still measured: the
+refusal comes after the plan and the check.
+
 ``cross`` is the 152 cm³ hollow cross fitting of 50 mm pipes
 (:func:`slicer.mesh.samples.pipe_cross`, 7.5 M samples at 0.2 mm), whose replay the check
 refused for its memory before it went by tiles and chunks; its five-axis slice has
@@ -57,9 +62,19 @@ def _cross() -> trimesh.Trimesh:
     return samples.pipe_cross()
 
 
+def _hard(name: str) -> Callable[[], trimesh.Trimesh]:
+    def make() -> trimesh.Trimesh:
+        from harness import hard_model
+
+        return hard_model(name, 50_000)
+    return make
+
+
+HARD_MODELS = ("pipe3_15", "tee_low", "pipe2_25", "down15", "ytree_20", "elbow1", "arms3")
 PARTS: dict[str, Callable[[], trimesh.Trimesh]] = {
     "box60": _box(60, 60, 10), "tower": _box(30, 30, 100), "box100": _box(100, 100, 10),
-    "pipe2": _pipe2, "pipe2x2": _pipe2_x2, "box250": _box(250, 250, 20), "cross": _cross}
+    "pipe2": _pipe2, "pipe2x2": _pipe2_x2, "box250": _box(250, 250, 20), "cross": _cross,
+    **{f"h:{m}": _hard(m) for m in HARD_MODELS}}
 
 # parts wider than the default platform (radius 150 mm) are sliced with a config of their own
 CONFIGS = {"box250": "machine:\n  platform_radius: 200\n"}
@@ -122,7 +137,8 @@ def run_part(stl: Path, cap: int, pythonpath: str, config: str | None = None,
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--parts", nargs="*", default=list(PARTS), choices=list(PARTS))
+    parser.add_argument("--parts", nargs="*", default=list(PARTS),
+                        choices=[*PARTS, "hard"], help="parts by name; hard: the h:<model>s")
     parser.add_argument("--cap-gb", type=float, default=4.0,
                         help="address-space limit of each slice, GB (default 4)")
     parser.add_argument("--base", help="checkout to slice with instead of this one")
@@ -132,20 +148,22 @@ def main() -> None:
     args = parser.parse_args()
     pythonpath = str(Path(args.base).resolve() if args.base else ROOT)
     print(f"slicer from {pythonpath}")
-    print(f"{'part':8s} {'volume cm3':>10s} {'peak RSS MiB':>12s} {'wall s':>7s} "
+    print(f"{'part':11s} {'volume cm3':>10s} {'peak RSS MiB':>12s} {'wall s':>7s} "
           f"{'replay s':>8s}  outcome")
+    parts = [p for name in args.parts
+             for p in ([f"h:{m}" for m in HARD_MODELS] if name == "hard" else [name])]
     with tempfile.TemporaryDirectory() as tmp:
-        for name in args.parts:
+        for name in parts:
             mesh = PARTS[name]()
-            stl = Path(tmp) / f"{name}.stl"
+            stl = Path(tmp) / f"{name.replace(':', '_')}.stl"
             mesh.export(stl)
             r = run_part(stl, int(args.cap_gb * 1e9), pythonpath, CONFIGS.get(name),
                          ("--allow-overhang",) if args.allow_overhang else ())
-            print(f"{name:8s} {mesh.volume / 1000:10.1f} {r['rss_mib']:12.0f} "
+            print(f"{name:11s} {mesh.volume / 1000:10.1f} {r['rss_mib']:12.0f} "
                   f"{r['wall_s']:7.1f} {r['replay_s']:8.2f}  {r['outcome']}", flush=True)
             assert str(r.get("slicer", pythonpath)).startswith(pythonpath), r["slicer"]
             if args.figures and "figures" in r:
-                print(f"{'':8s} replay: {r['figures']}")
+                print(f"{'':11s} replay: {r['figures']}")
 
 
 if __name__ == "__main__":

@@ -379,6 +379,12 @@ async def test_print_of_a_corrupt_ascii_stl_exits_2_naming_its_line_and_the_prin
         await watcher.close()
 
 
+def _sigint_default() -> None:
+    """Ctrl-C as at a terminal: a suite run in the background of a non-interactive shell
+    (``make test &``) hands its children SIGINT ignored, and Python then keeps it so."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.asyncio
 async def test_ctrl_c_of_print_wait_says_the_job_goes_on_and_estop_takes_json(tmp_path):
     long = tmp_path / "long.gcode"  # long enough to be printing still when SIGINT comes
@@ -389,7 +395,7 @@ async def test_ctrl_c_of_print_wait_says_the_job_goes_on_and_estop_takes_json(tm
         proc = await asyncio.create_subprocess_exec(
             sys.executable, "-m", "hostd.cli.main", "--socket", str(d.socket), "print",
             str(long), "--wait", stdout=asyncio.subprocess.PIPE,
-            stderr=asyncio.subprocess.PIPE, cwd=str(ROOT))
+            stderr=asyncio.subprocess.PIPE, cwd=str(ROOT), preexec_fn=_sigint_default)
         await watcher.until(lambda e: e["event"] == "job.progress" and e["acked"] > 10)
         proc.send_signal(signal.SIGINT)
         _, err = await proc.communicate()
