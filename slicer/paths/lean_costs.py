@@ -52,12 +52,19 @@ class LeanSettings:
     max_tilt : float
         Largest lean off the axis, degrees.
     soft_deg, hard_deg : float
-        Overhang below a layer's plane at which a face starts to cost, and costs its area
-        (the replay's cone is 45° with a slack; curved walls fail it a few degrees sooner).
+        Overhang below a layer's plane at which a face starts to cost, and costs its area.
+        The replay holds a bead whose offset from the one under it is at most
+        ``t·tan 45° + 0.1 w`` (:mod:`slicer.replay.support`): 51° at 0.2 mm, 49° at
+        0.3 mm (w 0.45 mm). The hinge spans 44–49°, up to that limit: a narrower one (35–45°, before
+        2026-12-06) priced a 45° lean at a bore's arch as a full overhang, so the plan chose
+        less lean there to spare the far wall and left the arch over air (the sweep of
+        unseen variants, ``bench/hard_sweep.py --variants 16``: 3 of 16 support-free with
+        35–45°, 7 of 16 with 44–49°). A face the replay still finds over air is priced
+        sooner on the retry (:class:`Column` ``margins``).
     wall_deg, wall_slack : float
         Faces within ``wall_deg`` of parallel to the axis (plain walls, which a lean tilts
         evenly) take ``wall_slack`` degrees more on both limits: their beads stack with the
-        full slack of the replay's cone, measured to pass at 47–49°.
+        full slack of the replay's cone.
     jump_cost : float
         mm² of overhang a jump (another stacked piece, one more table turn) is worth.
     tilt_cost, turn_cost : float
@@ -75,10 +82,10 @@ class LeanSettings:
     band: float = 2.0
     step_deg: float = 2.0
     max_tilt: float = 50.0
-    soft_deg: float = 35.0
-    hard_deg: float = 45.0
+    soft_deg: float = 44.0
+    hard_deg: float = 49.0
     wall_deg: float = 15.0
-    wall_slack: float = 5.0
+    wall_slack: float = 2.0
     jump_cost: float = 5.0
     tilt_cost: float = 0.002
     turn_cost: float = 0.005

@@ -25,9 +25,10 @@ from slicer.replay.check import WALLS_HELD
 from slicer.settings import ProcessSettings
 
 HARD = MODELS / "hard"
-SUPPORT_FREE = ("pipe2_25", "pipe3_15", "down15", "ytree_20")
+SUPPORT_FREE = ("pipe2_25", "down15", "ytree_20")
 """Support-free at 0.2 mm by issue 8's wall rule."""
 NOT_YET = {
+    "pipe3_15": "one layer of a 15° branch's arch over air at 0.2 mm (support-free at 0.3)",
     "tee_low": "the arch of a horizontal bore: 45° overhang upright-leaning either way",
     "elbow1": "no build order clears the head past the elbow's stub",
 }
