@@ -41,6 +41,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -219,11 +220,25 @@ def ours(stl: Path, out: Path, s: ProcessSettings, limits: MotionLimits) -> Run:
         last = (done.stderr.strip() or done.stdout.strip()).splitlines()
         return Run(wall, cpu, note=f"refused: {last[-1][:140] if last else done.returncode}")
     run = figures(out, limits, filament_area(s))
-    warned = [ln for ln in done.stderr.splitlines() + done.stdout.splitlines()
-              if "wall layer" in ln and "over air" in ln]
-    run.wall, run.cpu, run.note = wall, cpu, "walls over air" if warned else ""
+    run.wall, run.cpu, run.note = wall, cpu, wall_note(done.stdout)
     run.stages = next((ln for ln in done.stdout.splitlines() if ln.startswith("seconds ")), "")
     return run
+
+
+WALL_FIGURES = re.compile(r"(\d+) unsupported wall layers?, (\d+) over air")
+
+
+def wall_note(stdout: str) -> str:
+    """What the replay line of ``hostctl slice`` says of the walls: ``N wall layers over
+    air``, ``N unsupported wall layers (bridging sparse infill)``, or nothing when every
+    wall layer holds."""
+    found = WALL_FIGURES.search(stdout)
+    if found is None:
+        return "no replay figures"
+    bad, air = int(found[1]), int(found[2])
+    if air:
+        return f"{air} wall layers over air"
+    return f"{bad} unsupported wall layers (bridging sparse infill)" if bad else ""
 
 
 def cura(stl: Path, out: Path, s: ProcessSettings, limits: MotionLimits, defs: Path,
