@@ -5,8 +5,9 @@
     .venv/bin/python bench/hard_sweep.py --variants 24 --heights 0.2 --jobs 2
     .venv/bin/python bench/hard_sweep.py --variants 24 --kinds pipe elbow   # those of 0..23
 
-Every part is sliced as ``hostctl slice`` slices it (``slicer.pipeline.slice_model``, the
-shipped defaults, the retry loop included) at each layer height, and judged by the product's
+Every part is sliced as ``hostctl slice`` slices it (``slicer.pipeline.slice_model`` of an STL
+file, a variant written to one first, the shipped defaults, the retry loop included) at each
+layer height, and judged by the product's
 own replay: it **passes** when it is written with walls supported >= 99.8 %, no wall layer
 with more than 5 % of its wall points unsupported (issue 8's rule: a wall point bridging
 sparse infill inside the part is held),
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 import time
 from collections import defaultdict
 from concurrent.futures import ProcessPoolExecutor
@@ -38,22 +40,28 @@ WALLS, INSIDE = 0.998, 0.99
 
 def slice_one(task: tuple[str, str, float]) -> dict[str, object]:
     """Slice one part (a file, or ``variant:<index>``) at one layer height; its figures."""
-    import trimesh
+    from slicer.mesh.hard_samples import hard_variant
 
+    kind, source, t = task
+    name = Path(source).stem
+    with tempfile.TemporaryDirectory() as tmp:
+        part = source
+        if source.startswith("variant:"):  # written as the STL a user would send
+            variant = hard_variant(int(source.split(":")[1]))
+            name, part = variant.name, str(Path(tmp) / f"{variant.name}.stl")
+            variant.mesh().export(part)
+        return _sliced(kind, name, part, t)
+
+
+def _sliced(kind: str, name: str, part: str, t: float) -> dict[str, object]:
+    """``slice_model`` of the STL ``part`` at ``t`` mm, judged."""
     from kinematics.machine import MachineGeometry
     from slicer.decompose import DecompositionError
     from slicer.mesh import MeshError
-    from slicer.mesh.hard_samples import hard_variant
     from slicer.paths import SlicingError
     from slicer.pipeline import SliceError, slice_model
     from slicer.settings import ProcessSettings
 
-    kind, source, t = task
-    part: trimesh.Trimesh | str = source
-    name = Path(source).stem
-    if source.startswith("variant:"):
-        variant = hard_variant(int(source.split(":")[1]))
-        part, name = variant.mesh(), variant.name
     t0 = time.perf_counter()
     out: dict[str, object] = {"kind": kind, "name": name, "t": t}
     try:
