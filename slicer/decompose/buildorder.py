@@ -18,11 +18,17 @@ a branch (:func:`group_regions_refined`). See docs/decomposition.md, step 3.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
-from slicer.decompose.partition import Partition, boundary_lengths, split_region
+from slicer.decompose.partition import (
+    Partition,
+    boundary_lengths,
+    split_region,
+    split_region_k,
+)
 
 MERGE_ANGLE = 25.0  # degrees between a region's axis and its group's direction
 TUBULAR_RATIO = 0.35  # λ_min / λ_mid of the normal covariance below which a region has an axis
@@ -279,7 +285,7 @@ def group_regions(part: Partition, root: int, merge_angle: float = MERGE_ANGLE) 
 
 
 def group_regions_refined(part: Partition, root: int, merge_angle: float = MERGE_ANGLE,
-                          seed: int = 0, rounds: int = SPLIT_ROUNDS
+                          seed: int = 0, rounds: int = SPLIT_ROUNDS, three_way: bool = False
                           ) -> tuple[Partition, Groups]:
     """:func:`group_regions`, halving stranded regions that hide a branch and grouping again.
 
@@ -287,7 +293,8 @@ def group_regions_refined(part: Partition, root: int, merge_angle: float = MERGE
     group by its boundary only, and overhangs along that group's direction: a k-means patch
     straddling the end of a solid branch and the tube it leaves (no axis: the two tubes'
     normals mix) would print the branch in the tube's layers. Each stranded region is cut in
-    two (:func:`slicer.decompose.partition.split_region`); the cut is kept only when it
+    two (:func:`slicer.decompose.partition.split_region`), or else, with ``three_way``, in
+    three (:func:`~slicer.decompose.partition.split_region_k`); a cut is kept only when it
     reveals a branch: a half that is a clean tube (:func:`clean_tubes`) whose axis is more
     than ``merge_angle`` away from the group's direction. The groups are then built again, at
     most ``rounds`` times.
@@ -302,6 +309,11 @@ def group_regions_refined(part: Partition, root: int, merge_angle: float = MERGE
     seed : int
         Seed of the 2-means cuts.
     rounds : int
+    three_way : bool
+        Also cut a region in three where two halves reveal no branch (a short hollow
+        branch's wall and bore with the tube's patch). :func:`~slicer.decompose.decompose`
+        asks for it only when no attempt without it is good enough: it finds branches the
+        halving misses, and on other parts it can take a piece of a junction for a branch.
 
     Returns
     -------
@@ -315,18 +327,27 @@ def group_regions_refined(part: Partition, root: int, merge_angle: float = MERGE
     for _ in range(rounds):
         cut = False
         for r in np.flatnonzero(stranded_regions(part, groups, root)):
-            halved = split_region(part, int(r), seed)
-            if halved is None:
-                continue
-            halves = np.array([r, halved.count - 1])
-            axes, tube = clean_tubes(halved)
-            off = np.abs(axes[halves] @ groups.direction[groups.region_group[r]]) < cos_max
-            if (tube[halves] & off).any():
-                part, cut = halved, True
+            direction = groups.direction[groups.region_group[r]]
+            for pieces in _cuts(part, int(r), seed, three_way):
+                new = np.array([r, *range(part.count, pieces.count)])
+                axes, tube = clean_tubes(pieces)
+                if (tube[new] & (np.abs(axes[new] @ direction) < cos_max)).any():
+                    part, cut = pieces, True
+                    break
         if not cut:
             break
         groups = group_regions(part, root, merge_angle)
     return part, groups
+
+
+def _cuts(part: Partition, region: int, seed: int, three_way: bool) -> Iterator[Partition]:
+    """The cuts of a stranded region tried in turn: in two, then (``three_way``) in three."""
+    halves = split_region(part, region, seed)
+    if halves is not None:
+        yield halves
+    thirds = split_region_k(part, region, seed, 3) if three_way else None
+    if thirds is not None:
+        yield thirds
 
 
 def clean_tubes(part: Partition) -> tuple[np.ndarray, np.ndarray]:

@@ -229,7 +229,9 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     The configured seed (and K) is tried first. When it is refused, or its sub-parts overhang
     more than the retry threshold (:attr:`~slicer.planes2d.Tolerances.overhang_retry_abs` and
     ``overhang_retry_rel`` of the surface), up to ``TOL.retry_seeds`` further attempts follow
-    (:func:`attempt_plan`), and the valid result with the least overhang is kept (ties: fewest
+    (:func:`attempt_plan`); when none is within the threshold, the same attempts again with
+    stranded regions cut in three (``three_way``, :func:`group_regions_refined`: short hollow
+    branches), and the valid result with the least overhang is kept (ties: fewest
     sub-parts, then the first tried). A best result with a sub-part overhanging more than the
     refusal threshold (``overhang_refuse_abs`` and ``overhang_refuse_rel``) is refused.
 
@@ -267,16 +269,18 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     tried: list[str] = []
     results: list[Decomposition] = []
     first_error: DecompositionError | None = None
-    for seed, k in attempt_plan(mesh, settings):
+    plan = list(attempt_plan(mesh, settings))
+    for seed, k, three_way in [(s, k, False) for s, k in plan] + [(s, k, True) for s, k in plan]:
+        how = " three-way" if three_way else ""
         try:
-            dec = _attempt(mesh, settings, seed, k, machine, head, clock)
+            dec = _attempt(mesh, settings, seed, k, machine, head, clock, three_way)
         except RootRegionError:
             raise
         except DecompositionError as exc:
-            tried.append(f"seed {seed} k={k or 'auto'}: refused: {exc}")
+            tried.append(f"seed {seed} k={k or 'auto'}{how}: refused: {exc}")
             first_error = first_error or exc
             continue
-        tried.append(f"seed {seed} k={dec.k}: {len(dec.subparts)} sub-parts, overhang "
+        tried.append(f"seed {seed} k={dec.k}{how}: {len(dec.subparts)} sub-parts, overhang "
                      f"{dec.overhang_area:.1f} mm²")
         results.append(dec)
         if dec.overhang_area <= retry_above:
@@ -323,15 +327,18 @@ def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings
 
 
 def _attempt(mesh: trimesh.Trimesh, settings: DecomposeSettings, seed: int, k: int,
-             machine: MachineGeometry, head: Printhead, clock: _Clock) -> Decomposition:
-    """One decomposition with ``seed`` and K = ``k`` (0: automatic), overhang measured."""
+             machine: MachineGeometry, head: Printhead, clock: _Clock,
+             three_way: bool = False) -> Decomposition:
+    """One decomposition with ``seed`` and K = ``k`` (0: automatic), overhang measured;
+    ``three_way``: stranded regions may be cut in three (:func:`group_regions_refined`)."""
     part = coarse_partition(mesh, k or None, seed)
     clock.lap("partition")
     root = root_region(part) if settings.root is None else settings.root
     if not 0 <= root < part.count:
         raise RootRegionError(root, part.count)
     try:
-        part, groups = group_regions_refined(part, root, settings.merge_angle, seed)
+        part, groups = group_regions_refined(part, root, settings.merge_angle, seed,
+                                             three_way=three_way)
     except ValueError as exc:
         raise DecompositionError(str(exc)) from None
     clock.lap("build_order")
@@ -368,7 +375,7 @@ def _refuse_overhang(dec: Decomposition, area: float) -> None:
     raise DecompositionError(
         f"sub-part {worst.index} overhangs {worst.area:.0f} mm² more than "
         f"{TOL.overhang_deg:g}° from its build direction, near {where} mm (limit "
-        f"{limit:.0f} mm²; best of {tries} seed{'s' if tries != 1 else ''}, kept seed "
+        f"{limit:.0f} mm²; best of {tries} attempt{'s' if tries != 1 else ''}, kept seed "
         f"{dec.seed}): it would print in the air; no support-free decomposition was found")
 
 

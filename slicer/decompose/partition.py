@@ -230,6 +230,39 @@ def split_region(part: Partition, region: int, seed: int,
     return Partition(m, labels, part.k_requested)
 
 
+def split_region_k(part: Partition, region: int, seed: int, k: int,
+                   min_share: float = MIN_REGION_SHARE) -> Partition | None:
+    """``part`` with ``region`` cut into ``k`` or more edge-connected pieces.
+
+    Area-weighted k-means on the region's face centroids, each connected piece of a cluster
+    a piece of its own, pieces below ``min_share`` of the whole area merged into a
+    neighbour within the region (:func:`merge_small`). Where a 2-means cut
+    (:func:`split_region`) cannot separate a short hollow branch from the tube it leaves (its
+    outer wall and its bore fall in one half, joined only across the other), three clusters
+    can: the branch's bore, its outer wall and the tube's patch. The largest piece keeps the
+    index ``region``, the others become ``part.count``, ``part.count + 1``, ... Returns
+    ``None`` when fewer than two pieces are left.
+    """
+    m = part.mesh
+    faces = np.flatnonzero(part.labels == region)
+    if len(faces) < 2 * k:
+        return None
+    sub = m.submesh([faces], append=True)  # the region's faces, in the same order
+    clusters = kmeans_labels(m.triangles_center[faces], m.area_faces[faces], k, seed)
+    pieces = merge_small(sub, split_disconnected(sub, clusters), min_share * m.area / sub.area)
+    areas = np.bincount(pieces, weights=m.area_faces[faces])
+    count = len(areas)
+    if count < 2 or areas.min() < min_share * m.area:
+        return None
+    new_id = np.empty(count, dtype=np.int64)
+    order = np.argsort(-areas, kind="stable")
+    new_id[order[0]] = region
+    new_id[order[1:]] = part.count + np.arange(count - 1)
+    labels = part.labels.copy()
+    labels[faces] = new_id[pieces]
+    return Partition(m, labels, part.k_requested)
+
+
 def coarse_partition(mesh: trimesh.Trimesh, k: int | None, seed: int) -> Partition:
     """K-means coarse partition of ``mesh`` (paper 2.2.1) with connectivity clean-up.
 

@@ -25,7 +25,7 @@ from slicer.replay.check import WALLS_HELD
 from slicer.settings import ProcessSettings
 
 HARD = MODELS / "hard"
-SUPPORT_FREE = ("pipe2_25", "down15", "ytree_20")
+SUPPORT_FREE = ("pipe2_25", "down15", "ytree_20", "arms3")
 """Support-free at 0.2 mm by issue 8's wall rule."""
 NOT_YET = {
     "pipe3_15": "one layer of a 15° branch's arch over air at 0.2 mm (support-free at 0.3)",
@@ -81,7 +81,7 @@ def test_a_hard_part_is_support_free_by_its_own_replay(name: str) -> None:
     assert result.subparts >= 2  # the branches are sub-parts of their own
 
 
-@pytest.mark.parametrize("name", ["tee_low", "arms3"])
+@pytest.mark.parametrize("name", ["tee_low", "pipe3_15"])
 def test_a_hard_part_not_support_free_is_refused_naming_where(name: str) -> None:
     with pytest.raises((UnsupportedWallsError, SlicingError, DecompositionError)) as caught:
         _slice(name, allow=False)
