@@ -248,6 +248,7 @@ def split_region_k(part: Partition, region: int, seed: int, k: int,
     if len(faces) < 2 * k:
         return None
     sub = m.submesh([faces], append=True)  # the region's faces, in the same order
+    assert isinstance(sub, trimesh.Trimesh)  # one face set appended: one mesh
     clusters = kmeans_labels(m.triangles_center[faces], m.area_faces[faces], k, seed)
     pieces = merge_small(sub, split_disconnected(sub, clusters), min_share * m.area / sub.area)
     areas = np.bincount(pieces, weights=m.area_faces[faces])
