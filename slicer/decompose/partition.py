@@ -232,11 +232,12 @@ def split_region(part: Partition, region: int, seed: int,
 
 def split_region_k(part: Partition, region: int, seed: int, k: int,
                    min_share: float = MIN_REGION_SHARE) -> Partition | None:
-    """``part`` with ``region`` cut into ``k`` or more edge-connected pieces.
+    """``part`` with ``region`` cut into edge-connected pieces by ``k``-means.
 
     Area-weighted k-means on the region's face centroids, each connected piece of a cluster
     a piece of its own, pieces below ``min_share`` of the whole area merged into a
-    neighbour within the region (:func:`merge_small`). Where a 2-means cut
+    neighbour within the region (:func:`merge_small`), so there may be fewer or more than
+    ``k``. Where a 2-means cut
     (:func:`split_region`) cannot separate a short hollow branch from the tube it leaves (its
     outer wall and its bore fall in one half, joined only across the other), three clusters
     can: the branch's bore, its outer wall and the tube's patch. The largest piece keeps the
@@ -249,6 +250,8 @@ def split_region_k(part: Partition, region: int, seed: int, k: int,
         return None
     sub = m.submesh([faces], append=True)  # the region's faces, in the same order
     assert isinstance(sub, trimesh.Trimesh)  # one face set appended: one mesh
+    if len(sub.faces) != len(faces):  # a face dropped (degenerate): labels would not align
+        return None
     clusters = kmeans_labels(m.triangles_center[faces], m.area_faces[faces], k, seed)
     pieces = merge_small(sub, split_disconnected(sub, clusters), min_share * m.area / sub.area)
     areas = np.bincount(pieces, weights=m.area_faces[faces])
