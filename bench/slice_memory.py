@@ -36,6 +36,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import trimesh
+from harness import HARD, hard_model
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -63,14 +64,10 @@ def _cross() -> trimesh.Trimesh:
 
 
 def _hard(name: str) -> Callable[[], trimesh.Trimesh]:
-    def make() -> trimesh.Trimesh:
-        from harness import hard_model
-
-        return hard_model(name, 50_000)
-    return make
+    return lambda: hard_model(name, 50_000)
 
 
-HARD_MODELS = ("pipe3_15", "tee_low", "pipe2_25", "down15", "ytree_20", "elbow1", "arms3")
+HARD_MODELS = sorted(p.stem for p in HARD.glob("*.stl"))
 PARTS: dict[str, Callable[[], trimesh.Trimesh]] = {
     "box60": _box(60, 60, 10), "tower": _box(30, 30, 100), "box100": _box(100, 100, 10),
     "pipe2": _pipe2, "pipe2x2": _pipe2_x2, "box250": _box(250, 250, 20), "cross": _cross,

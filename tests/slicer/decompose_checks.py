@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import trimesh
+from scipy.spatial import cKDTree
 
 VOLUME_REL = 0.005  # sub-part volumes sum to the part's within this share
 SIDE_TOL = 1e-4  # mm: sub-part vertices may lie this far below their base plane
@@ -67,3 +68,12 @@ def is_clean_failure(message: str) -> bool:
     """A refusal that names the boundary and the violated constraint, on one line."""
     return ("boundary between sub-part" in message and "constraint" in message
             and "\n" not in message)
+
+
+def owners(dec: object, points: list[np.ndarray]) -> list[int]:
+    """Index of the sub-part nearest to each input-frame point (placed by the
+    decomposition's own placement): which sub-part prints a branch's end."""
+    verts = np.concatenate([s.mesh.vertices for s in dec.subparts])
+    owner = np.concatenate([np.full(len(s.mesh.vertices), s.index) for s in dec.subparts])
+    placed = trimesh.transform_points(np.asarray(points), dec.placement)
+    return [int(owner[i]) for i in cKDTree(verts).query(placed)[1]]

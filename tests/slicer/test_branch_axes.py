@@ -15,8 +15,7 @@ import manifold3d as m3d
 import numpy as np
 import pytest
 import trimesh
-from decompose_checks import check_decomposition
-from scipy.spatial import cKDTree
+from decompose_checks import check_decomposition, owners
 from shared_models import MODELS
 
 from kinematics.machine import MachineGeometry
@@ -80,14 +79,6 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(a @ b, -1.0, 1.0))))
 
 
-def _owners(dec: object, placement: np.ndarray, points: list[np.ndarray]) -> list[int]:
-    """Sub-part nearest to each input-frame point (just inside the branch's end cap)."""
-    verts = np.concatenate([s.mesh.vertices for s in dec.subparts])
-    owner = np.concatenate([np.full(len(s.mesh.vertices), s.index) for s in dec.subparts])
-    placed = trimesh.transform_points(np.asarray(points), placement)
-    return [int(owner[i]) for i in cKDTree(verts).query(placed)[1]]
-
-
 # Seeds where the branches stayed in the root before the fix (the QA's STL files differ in
 # face order from these, so their seeds differ too); cross_h 7 and down_branch 4 also need the
 # stranded-region split, the others the side-face axis only. Seeds 0-9 all pass.
@@ -116,9 +107,9 @@ def test_every_solid_branch_is_its_own_sub_part_along_its_axis(decomposed, name,
     mesh, branches, dec = decomposed[name, seed]
     assert len(dec.subparts) == 1 + len(branches)
     rot = dec.placement[:3, :3]
-    owners = _owners(dec, dec.placement, [end - 0.2 * axis for end, axis in branches])
-    assert 0 not in owners and len(set(owners)) == len(branches)
-    for k, (_, axis) in zip(owners, branches, strict=True):
+    owned = owners(dec, [end - 0.2 * axis for end, axis in branches])
+    assert 0 not in owned and len(set(owned)) == len(branches)
+    for k, (_, axis) in zip(owned, branches, strict=True):
         want = nearest_reachable(rot @ axis, MACHINE.a_limits)
         assert _angle(dec.subparts[k].build_direction, want) <= AXIS_TOL
     assert sum(s.volume for s in dec.subparts) == pytest.approx(mesh.volume, rel=0.005)
