@@ -30,9 +30,16 @@ from shapely.geometry.base import BaseGeometry
 from kinematics.errors import UnreachableDirection
 from kinematics.machine import MachineGeometry
 from kinematics.orient import solve_orientation
+from slicer.paths.evade import OBSTACLES, candidates, tilted
 from slicer.paths.interfaces import ChildBase
 from slicer.paths.layer_workers import layer_processes, start_stages
-from slicer.paths.layers import LayerPlane, MarchSettings, SlicingError, march_layers
+from slicer.paths.layers import (
+    Direction,
+    LayerPlane,
+    MarchSettings,
+    SlicingError,
+    march_layers,
+)
 from slicer.paths.lean import LeanPlan
 from slicer.paths.lean_costs import LEAN, LeanSettings
 from slicer.paths.skeleton import SkeletonCurve, line_curve, skeleton_curve
@@ -219,30 +226,36 @@ class _Timer:
 
 def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np.ndarray, bool],
                    settings: ProcessSettings, machine: _Machine, timer: _Timer,
-                   lean: LeanPlan | None = None
+                   lean: LeanPlan | None = None, evade: tuple[np.ndarray, float] | None = None
                    ) -> tuple[list[LayerPlane], list[tuple[float, float]]]:
     """March one sub-part's layers; returns them with their (A, C).
 
     ``base`` is (point, normal, upright): an upright part (the root, the planar control) is
-    sliced along the vertical through its base centre; others along their skeleton curve. A
-    piece of the root with a ``lean`` plan is sliced along the root's axis from its base,
-    its layers turning towards the plan's directions (:mod:`slicer.paths.lean`).
+    sliced along the vertical through its base centre; others along their skeleton curve,
+    their layers aimed ``evade = (away, degrees)`` off its tangent when given
+    (:mod:`slicer.paths.evade`). A piece of the root with a ``lean`` plan is sliced along the
+    root's axis from its base, its layers turning towards the plan's directions
+    (:mod:`slicer.paths.lean`).
     """
     solid = _solid(mesh)
     centre, _, _ = _base_centre(solid, base[0], base[1], settings.layer_height)
     timer.lap("sections")
-    direction = None
+    direction: Direction | None = None
     if lean is not None:
         curve = line_curve(centre, lean.axis, float(np.ptp(mesh.vertices @ lean.axis)) + 1.0,
                            "axis")
         start = float((centre - lean.origin) @ lean.axis)
 
-        def direction(s: np.ndarray) -> np.ndarray:
+        def leaning(s: np.ndarray) -> np.ndarray:
             return lean.direction(np.asarray(s) + start)
+
+        direction = leaning
     elif base[2]:
         curve = line_curve(centre, UP, float(np.ptp(mesh.vertices[:, 2])) + 1.0, "axis")
     else:
         curve = _curve(mesh, centre, base[1])
+        if evade is not None:
+            direction = tilted(curve, *evade)
     timer.lap("skeleton")
     poses: list[tuple[float, float]] = []
     machine.start(index)
@@ -344,8 +357,8 @@ def _plan(decomposition: Decomposition, settings: ProcessSettings, geometry: Mac
             sp = subs[k]
             base = _base_of(sp)
             try:
-                layers, poses = _slice_subpart(k, sp.mesh, (*base, sp.parent is None),
-                                               settings, machine, timer, leaned.plans.get(k))
+                layers, poses = _slice_evading(k, sp, base, settings, machine, timer,
+                                               leaned.plans.get(k))
             except SlicingError as exc:
                 child = _blocked_child(exc, leaned, defer)
                 if child is None:
@@ -374,6 +387,36 @@ def _plan(decomposition: Decomposition, settings: ProcessSettings, geometry: Mac
     volume = float(getattr(decomposition, "volume", sum(s.mesh.volume for s in subs.values())))
     return PrintPlan(np.asarray(decomposition.placement, dtype=float), plans, volume,
                      dict(timer.laps), getattr(decomposition, "base", None), source)
+
+
+def _slice_evading(k: int, sp: Subpart, base: tuple[np.ndarray, np.ndarray],
+                   settings: ProcessSettings, machine: _Machine, timer: _Timer,
+                   lean: LeanPlan | None) -> tuple[list[LayerPlane], list[tuple[float, float]]]:
+    """:func:`_slice_subpart`, and when the head meets printed material or the platform on a
+    sub-part printed on another, again with its layers leaning away from it
+    (:mod:`slicer.paths.evade`); the first error when no lean marches through."""
+    c0 = machine.c
+    try:
+        return _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings, machine,
+                              timer, lean)
+    except SlicingError as exc:
+        if sp.parent is None or lean is not None or exc.obstacle not in OBSTACLES \
+                or machine.head is None:
+            raise
+        first = exc
+    for away, deg in candidates(str(first.obstacle), sp.mesh, base, machine.parts,
+                                machine.head.reach):
+        machine.c = c0
+        try:
+            out = _slice_subpart(k, sp.mesh, (*base, False), settings, machine, timer,
+                                 evade=(away, deg))
+        except SlicingError:
+            continue
+        log.info("%s; leaning its layers %.0f° towards %s instead", first, deg,
+                 np.round(away, 2).tolist())
+        return out
+    machine.c = c0
+    raise first
 
 
 def _blocked_child(exc: SlicingError, leaned: Leaned, defer: frozenset[int]) -> int | None:
