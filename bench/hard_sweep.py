@@ -13,7 +13,8 @@ with more than 5 % of its wall points unsupported (issue 8's rule: a wall point 
 sparse infill inside the part is held),
 no head collision and >= 99 % of the material inside the model. One line per slice
 (sub-parts, walls, unsupported wall layers and those of them over air, collisions, inside,
-seconds, retry rounds, other decomposition seeds tried and the seed kept), then the pass
+seconds, retry rounds, other decomposition seeds tried and the seed kept, the first three
+unsupported wall layers), then the pass
 share per class and height. Outcomes other than a
 pass: ``walls`` (the file ``hostctl slice`` refuses, or writes with --allow-overhang, which
 the bench sets to measure it; a file with unsupported wall layers that all bridge sparse
@@ -80,7 +81,8 @@ def _sliced(kind: str, name: str, part: str, t: float) -> dict[str, object]:
                    bad=len(bad), air=int(rep.get("wall_layers_over_air", 0)),
                    collisions=rep["collisions"], inside=inside,
                    rounds=int(res.timings.get("repair_rounds", 0)),
-                   others=int(res.timings.get("alternatives_tried", 0)), seed=res.seed)
+                   others=int(res.timings.get("alternatives_tried", 0)), seed=res.seed,
+                   where=", ".join(str(w) for w in bad[:3]))
     out["seconds"] = time.perf_counter() - t0
     return out
 
@@ -93,7 +95,8 @@ def line(r: dict[str, object]) -> str:
                 f"bad layers {r['bad']:>3} (over air {r['air']:>3})  collisions "
                 f"{r['collisions']}  inside "
                 f"{100 * r['inside']:6.2f} %  retries {r['rounds']}  other seeds "
-                f"{r['others']} (kept {r['seed']})  {r['seconds']:6.1f} s")
+                f"{r['others']} (kept {r['seed']})  {r['seconds']:6.1f} s"
+                + (f"  [{r['where']}]" if r["where"] else ""))
     return f"{head} {r['seconds']:6.1f} s  {r['reason']}"
 
 

@@ -215,7 +215,7 @@ def _leaned(decomposition: Decomposition, root: Subpart, pieces: Sequence[Piece]
         same = {s.index: s.index for s in decomposition.subparts if s.index != root.index}
         return Leaned(decomposition, {root.index: plan}, same)
     dec, original = restack(decomposition, root.index, pieces, defer)
-    return Leaned(dec, {root.index + k: plan for k in range(len(pieces))}, original)
+    return Leaned(dec, {root.index + k: plan.piece(k) for k in range(len(pieces))}, original)
 
 
 def turning_of(t: float, f_min: float, f_max: float) -> Turning:

@@ -232,3 +232,27 @@ def test_restacking_numbers_pieces_first_and_prints_a_deferred_child_on_its_piec
     for k in early.order:
         assert parents[k] is None or parents[k] in seen
         seen.add(k)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_each_stacked_piece_keeps_its_own_directions_past_its_last_band(seed: int) -> None:
+    """A piece's layers reach past the next cut's band on the side they lean to: there they
+    keep the piece's last direction (what the plan priced), never the next piece's."""
+    rng = np.random.default_rng(seed)
+    nb = int(rng.integers(12, 30))
+    dirs = rng.normal(size=(nb, 3)) + np.array([0.0, 0.0, 4.0])
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    jumps = tuple(sorted(int(j) for j in rng.choice(np.arange(2, nb - 1), 2, replace=False)))
+    plan = LeanPlan(np.zeros(3), np.array([0.0, 0.0, 1.0]), 2.0, dirs, jumps, 0.0, 0.0)
+    s = np.linspace(-5.0, 2.0 * nb + 5.0, 400)
+    whole = plan.direction(s)
+    bands = np.clip(np.floor(s / 2.0).astype(int), 0, nb - 1)
+    assert np.array_equal(whole, dirs[bands])  # the whole plan: unchanged
+    ends = [0, *jumps, nb]
+    for k in range(len(jumps) + 1):
+        got = plan.piece(k).direction(s)
+        lo, hi = ends[k], ends[k + 1] - 1
+        inside = (bands >= lo) & (bands <= hi)
+        assert np.array_equal(got[inside], dirs[bands[inside]])
+        assert np.array_equal(got[bands > hi], np.repeat(dirs[hi][None], (bands > hi).sum(), 0))
+        assert np.array_equal(got[bands < lo], np.repeat(dirs[lo][None], (bands < lo).sum(), 0))
