@@ -161,15 +161,6 @@ class MarchSettings:
     f_min: float
     f_max: float
     max_layers: int = 100000
-    first: float = 1.0
-    """The first layer's thickness, a share of t. A sub-part printed on another starts on
-    the cut across its parent's layers, which meet it in a staircase when they cross it at
-    an angle (the parent leaning, a branch's cut square to the branch): the parent's last
-    beads end up to half a layer under the cut, set back half a line from it, and a first
-    layer of t stood on their flanks over air (issue 34: tee_low, elbow1 at 0.2 mm, 5–6 %
-    of the first layer's wall points). The planner makes it ``f_max`` (1.5 at 0.2 mm; 1.07
-    at 0.3 mm, the bead cap): its beads reach as deep and hold as far out as the replay's
-    rule allows a bead of that height."""
 
 
 def _try_plane(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray,
@@ -246,7 +237,7 @@ def _step(curve: SkeletonCurve, s_prev: float, below: tuple[np.ndarray, np.ndarr
     layer on the skeleton while it turns, rather than a turn that lags behind the curve)."""
     sym = min(1.0 - ms.f_min, ms.f_max - 1.0)
     half_span = 0.5 * (ms.f_max - ms.f_min)
-    t_here, slack = (ms.t if index else ms.first * ms.t), sym
+    t_here, slack = ms.t, sym
     for _ in range(2):
         s = _advance(curve, s_prev, below, t_here)
         origin = curve.point(s)[0]

@@ -208,12 +208,9 @@ def _base_centre(solid: m3.Manifold, point: np.ndarray, normal: np.ndarray,
     return from_plane([[c.x, c.y]], point, frame)[0], sec, frame
 
 
-def _march(settings: ProcessSettings, on_a_cut: bool = False) -> MarchSettings:
-    """The march's bounds; a sub-part starting ``on_a_cut`` (not on the platform) has its
-    first layer as thick as the bounds allow (:data:`MarchSettings.first`)."""
-    f_max = settings.max_layer_share()
-    return MarchSettings(settings.layer_height, settings.min_layer_factor, f_max,
-                         first=f_max if on_a_cut else 1.0)
+def _march(settings: ProcessSettings) -> MarchSettings:
+    return MarchSettings(settings.layer_height, settings.min_layer_factor,
+                         settings.max_layer_share())
 
 
 @dataclass
@@ -267,8 +264,8 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
         return machine.accept(origin, frame, region)
 
     layers = []
-    for layer in march_layers(solid, curve, centre, base[1], _march(settings, not base[2]),
-                              accept, index, direction):
+    for layer in march_layers(solid, curve, centre, base[1], _march(settings), accept, index,
+                              direction):
         layers.append(layer)
         poses.append(machine.pose)
         machine.c = machine.pose[1]
