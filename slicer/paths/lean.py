@@ -168,7 +168,7 @@ def solve(problem: LeanProblem, no_jump: frozenset[int] = frozenset(),
         jump_ok[b] &= mask
         must[b] = True
     allowed = LeanCosts(costs.overhang, costs.allowed, costs.jump_penalty, jump_ok,
-                        costs.upright, must)
+                        costs.upright, must, costs.stranded)
     cells, jumps, total = _cheapest(allowed, problem.grid, problem.limits, problem.settings)
     world = problem.grid.world(problem.column.frame)
     dirs = np.array([world[i, j] for i, j in cells])
@@ -208,9 +208,12 @@ def _cheapest(costs: LeanCosts, grid: DirectionGrid, limits: np.ndarray,
         if costs.forced[b]:  # a cut here whatever it costs: no turning past it
             best = np.full_like(best, np.inf)
         if costs.jump_ok[b].any():
-            i0, j0 = np.unravel_index(int(np.argmin(acc)), acc.shape)
-            jump = np.where(costs.jump_ok[b], acc[i0, j0] + settings.jump_cost
-                            + costs.jump_penalty[b], np.inf)
+            i0, j0 = (int(x) for x in np.unravel_index(int(np.argmin(acc)), acc.shape))
+            left = costs.jump_penalty[b]
+            if costs.stranded is not None:
+                left = np.maximum(left, costs.stranded.penalty(b, (i0, j0)))
+            jump = np.where(costs.jump_ok[b], acc[i0, j0] + settings.jump_cost + left,
+                            np.inf)
             take = jump < best
             best = np.where(take, jump, best)
             arg[take] = (JUMP, JUMP)

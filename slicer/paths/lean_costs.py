@@ -161,6 +161,9 @@ class LeanCosts:
         Overhang cost of printing the whole sub-part along the axis.
     forced : (nb,) bool
         Bands where the plan must jump (a cut the build order needs).
+    stranded : Stranded or None
+        The faces a jump leaves to the piece below, priced once the piece's last direction
+        is known (the plan's dynamic programme asks); None: ``jump_penalty`` alone.
     """
 
     overhang: np.ndarray
@@ -169,6 +172,7 @@ class LeanCosts:
     jump_ok: np.ndarray
     upright: float
     forced: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    stranded: Stranded | None = None
 
     def __post_init__(self) -> None:
         if len(self.forced) != len(self.overhang):
@@ -249,7 +253,48 @@ def lean_costs(column: Column, n_bands: int, grid: DirectionGrid, head: Printhea
     allowed = _platform(column, dirs, grid, n_bands, head, settings) & grid.inside[None]
     jump_ok = allowed & _unbroken(column, dirs, n_bands, settings)
     k = grid.centre
-    return LeanCosts(over, allowed, penalty, jump_ok, float(over[:, k, k].sum()))
+    return LeanCosts(over, allowed, penalty, jump_ok, float(over[:, k, k].sum()),
+                     stranded=Stranded(faces, dirs.reshape(-1, 3), column.axis,
+                                       settings.band, grid.inside.shape))
+
+
+@dataclass(frozen=True)
+class Stranded:
+    """What a jump leaves to the piece below it, priced in that piece's last direction.
+
+    A jump at band ``b`` cuts the part by the plane square to the new direction ``d``
+    through the axis at the band's middle. A face under that cut is printed by the piece
+    below; if its layer in the piece's last direction ``e`` crosses the axis at band ``b``
+    or later (``s(e) >= b · band``: the piece's bands before the jump never reached it), the
+    piece prints it in ``e`` past its last band (:meth:`~slicer.paths.lean.LeanPlan.piece`),
+    and it costs its overhang on ``e``. The per-band price (:func:`_overhang`) sees such a
+    face in no band, and ``jump_penalty`` guesses without ``e``: a bore's arch just under a
+    cut went unpriced, and unhinted (pipe3_15 at 0.2 mm). ``e`` is known only while the plan
+    is solved (the cell a jump leaves from), so the plan asks (:meth:`penalty`).
+    """
+
+    faces: _Faces
+    dirs: np.ndarray  # (m, 3) every grid cell's world direction
+    axis: np.ndarray
+    band: float
+    shape: tuple[int, int]
+
+    def penalty(self, b: int, cell: tuple[int, int]) -> np.ndarray:
+        """Weighted overhang left below a jump at band ``b`` to each direction, from the
+        grid ``cell`` (the piece's last direction), (n, n)."""
+        f = self.faces
+        e = self.dirs.reshape(*self.shape, 3)[cell]
+        s_low = (f.centre @ e) / float(e @ self.axis)
+        w = f.cost((f.normal @ e)[:, None])[:, 0]
+        sel = np.flatnonzero((s_low >= b * self.band) & (w > 0.0))
+        out = np.zeros(len(self.dirs))
+        cut = (b + 0.5) * self.band
+        along = self.dirs @ self.axis
+        for lo in range(0, len(sel), CHUNK * 8):  # (faces, m) temporaries stay bounded
+            rows = sel[lo:lo + CHUNK * 8]
+            under = (f.centre[rows] @ self.dirs.T) / along[None, :] < cut
+            out += w[rows] @ under
+        return out.reshape(self.shape)
 
 
 @dataclass(frozen=True)
