@@ -1,8 +1,9 @@
 """The parts of ``../shared/models/hard`` (branches a planar print cannot make without
 support), sliced at 0.2 mm as ``hostctl slice`` slices them and judged by the product's own
-replay: support-free where the README says so, refused naming where (sub-part, layer, a
-point of the part) where not yet; and the closed loop shown holding a part the paper's one
-shot (the root upright) leaves with walls over air.
+replay: every one support-free (a part that is not yet goes in ``NOT_YET``, a strict
+xfail, with the README's reason); a file with walls over air refused naming where
+(sub-part, layer, a point of the part); and the closed loop shown holding a part the
+paper's one shot (the root upright) leaves with walls over air.
 
 The figures of every part at 0.2 and 0.3 mm, and of a seeded sweep of variants, are
 ``bench/hard_sweep.py``'s (README, "Support-free on hard parts").
@@ -25,13 +26,9 @@ from slicer.replay.check import WALLS_HELD
 from slicer.settings import ProcessSettings
 
 HARD = MODELS / "hard"
-SUPPORT_FREE = ("pipe2_25", "down15", "ytree_20", "arms3")
-"""Support-free at 0.2 mm by issue 8's wall rule."""
-NOT_YET = {
-    "pipe3_15": "one layer of a 15° branch's arch over air at 0.2 mm (support-free at 0.3)",
-    "tee_low": "the arch of a horizontal bore: 45° overhang upright-leaning either way",
-    "elbow1": "no build order clears the head past the elbow's stub",
-}
+SUPPORT_FREE = ("pipe2_25", "down15", "ytree_20", "arms3", "pipe3_15", "tee_low", "elbow1")
+"""Support-free at 0.2 mm by issue 8's wall rule: all seven."""
+NOT_YET: dict[str, str] = {}
 """Not support-free yet, with the README's reason (a strict xfail: it fails when mended)."""
 _SLICED: dict[tuple[object, ...], SliceResult | Exception] = {}
 
@@ -75,20 +72,6 @@ def test_a_hard_part_is_support_free_by_its_own_replay(name: str) -> None:
     assert _support_free(result.replay) == []
     assert result.warning is None
     assert result.subparts >= 2  # the branches are sub-parts of their own
-
-
-@pytest.mark.parametrize("name", list(NOT_YET))
-def test_a_hard_part_not_support_free_yet_is_written_only_when_allowed(name: str) -> None:
-    """Never silently: the file of a part with walls over air comes only with
-    ``--allow-overhang``, and then with a warning naming them (the refusal without it is
-    the next test's)."""
-    try:
-        result = _slice(name)
-    except (SlicingError, DecompositionError) as exc:  # refused before any file
-        assert "\n" not in str(exc) and re.search(r"sub-part \d+", str(exc)), exc
-        return
-    assert _support_free(result.replay) != []
-    assert result.warning and re.search(r"sub-part \d+ layer \d+", result.warning)
 
 
 def test_a_part_with_walls_over_air_is_refused_naming_where() -> None:

@@ -18,7 +18,14 @@ from slicer.decompose import Decomposition, Plane, Subpart
 from slicer.mesh import to_trimesh
 from slicer.paths.columns import column_of, restack, stack
 from slicer.paths.lean import LeanPlan, Turning, _cheapest, lean_problem, solve
-from slicer.paths.lean_costs import DirectionGrid, LeanCosts, LeanSettings, hinge
+from slicer.paths.lean_costs import (
+    DirectionGrid,
+    LeanCosts,
+    LeanSettings,
+    Stranded,
+    _Faces,
+    hinge,
+)
 from slicer.planes2d import slicing_solid
 from slicer.printhead import Printhead
 
@@ -256,3 +263,43 @@ def test_each_stacked_piece_keeps_its_own_directions_past_its_last_band(seed: in
         assert np.array_equal(got[inside], dirs[bands[inside]])
         assert np.array_equal(got[bands > hi], np.repeat(dirs[hi][None], (bands > hi).sum(), 0))
         assert np.array_equal(got[bands < lo], np.repeat(dirs[lo][None], (bands < lo).sum(), 0))
+
+
+def _faces(rng: np.random.Generator, count: int) -> _Faces:
+    centre = rng.uniform([-10.0, -10.0, 0.0], [10.0, 10.0, 30.0], size=(count, 3))
+    normal = rng.normal(size=(count, 3)) - [0.0, 0.0, 1.0]  # mostly facing down
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    area = rng.uniform(0.1, 2.0, count)
+    soft, hard = np.full(count, 44.0), np.full(count, 49.0)
+    zero = np.zeros(count)
+    return _Faces(centre, normal, area, centre[:, 2], soft, hard, zero, zero)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_jump_prices_what_it_leaves_below_in_the_lower_pieces_last_direction(seed: int
+                                                                               ) -> None:
+    """Brute force over faces and directions: a face costs a jump at band b to d when the
+    cut (square to d through the axis at the band's middle) leaves it below, and the lower
+    piece's last direction e reaches it at band b or later; it costs its overhang on e."""
+    rng = np.random.default_rng(seed)
+    grid = DirectionGrid.make(20.0, 4.0)
+    dirs = grid.world(np.eye(3))
+    faces = _faces(rng, 300)
+    axis = np.array([0.0, 0.0, 1.0])
+    stranded = Stranded(faces, dirs.reshape(-1, 3), axis, 2.0, grid.inside.shape)
+    b = int(rng.integers(3, 12))
+    cell = (int(rng.integers(0, grid.inside.shape[0])), int(rng.integers(0, grid.inside.shape[0])))
+    got = stranded.penalty(b, cell)
+    e = dirs[cell]
+    want = np.zeros(grid.inside.shape)
+    for f in range(len(faces.area)):
+        c, n = faces.centre[f], faces.normal[f]
+        if (c @ e) / (e @ axis) < b * 2.0:
+            continue  # the piece printed it before the jump's band
+        cost = float(hinge(np.array(n @ e), 44.0, 49.0)) * faces.area[f]
+        for i, j in np.ndindex(*grid.inside.shape):
+            d = dirs[i, j]
+            if (c - (b + 0.5) * 2.0 * axis) @ d < 0.0:  # under the cut
+                want[i, j] += cost
+    assert np.allclose(got, want)
+    assert got.max() > 0.0  # the random faces leave something somewhere
