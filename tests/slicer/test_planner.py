@@ -488,3 +488,28 @@ def test_inline_executor_delivers_results_and_errors() -> None:
     assert list(ex.map(lambda x: x * x, [1, 2, 3])) == [1, 4, 9]
     with pytest.raises(ZeroDivisionError):
         ex.submit(lambda: 1 / 0).result()
+
+
+def test_the_last_layers_without_a_path_are_dropped_the_others_kept() -> None:
+    """A sub-part's last sections can be slivers narrower than a line: no path, nothing to
+    print, only table turns. They are dropped; a pathless layer between printed ones stays
+    (its index names it in messages), and a sub-part keeps at least one layer."""
+    from slicer.paths.planner import _built, _Timer
+    from slicer.plan import Layer, Path
+
+    def layer(i: int, printed: bool) -> Layer:
+        paths = [Path("perimeter", np.zeros((2, 3)), np.full(2, 0.2), 0.45, 30.0)]
+        return Layer(1, i, np.zeros(3), np.array([0.0, 0.0, 1.0]), 0.0, 0.0, (0.2, 0.2),
+                     paths if printed else [])
+
+    def built(printed: list[bool]) -> list[int]:
+        job: Future = Future()
+        job.set_result(([layer(i, p) for i, p in enumerate(printed)], {"toolpaths": 0.5}))
+        timer = _Timer()
+        out = [la.index for la in _built(job, timer)]
+        assert timer.laps["toolpaths"] == 0.5
+        return out
+
+    assert built([True, False, True, False, False]) == [0, 1, 2]
+    assert built([True, True]) == [0, 1]
+    assert built([False, False]) == [0]
