@@ -105,8 +105,8 @@ class LeanPlan:
         the band before the next cut. The layers of a piece reach past the next cut's band
         on the side they lean to, up to the cut: they keep the piece's last direction there,
         as the plan's prices assume (:mod:`~slicer.paths.lean_costs`, jumps), rather than
-        turning towards the piece above (a bore's arch just under a cut printed 5° short of
-        its planned lean: pipe3_15 at 0.2 mm)."""
+        turning towards the piece above (a bore's arch just under a cut printed short of its
+        planned lean: pipe3_15 at 0.2 mm)."""
         ends = [0, *self.jumps, len(self.directions)]
         return replace(self, span=(ends[k], max(ends[k], ends[k + 1] - 1)))
 
