@@ -146,13 +146,17 @@ def best_decomposition(decomposed: Callable[[int, int], Try[R]], alternatives: i
     The first decomposition's best try, or a better one of the next ``alternatives``
     (tried only while no try is support-free, each with :data:`ALTERNATIVE_ROUNDS` leaning
     tries at most). The first decomposition's failure is raised when none plans a file;
-    ``timings`` gains ``alternatives`` (seconds) and ``alternatives_tried``."""
+    ``timings`` gains ``alternatives`` (seconds) and ``alternatives_tried``, and when the
+    try kept is not the first decomposition's, ``first_decomposition``: the seconds its
+    tries took, which the kept try's own stages do not count."""
     best: Try[R] | None = None
     first_error: Exception | None = None
+    start = time.perf_counter()
     try:
         best = decomposed(0, rounds)
     except failures as exc:
         first_error = exc
+    first, first_seconds = best, time.perf_counter() - start
     t0, tried = time.perf_counter(), 0
     for k in range(1, alternatives + 1):
         if best is not None and best.support_free:
@@ -169,6 +173,8 @@ def best_decomposition(decomposed: Callable[[int, int], Try[R]], alternatives: i
     if tried:
         timings["alternatives"] = time.perf_counter() - t0
         timings["alternatives_tried"] = float(tried)
+    if best is not first:
+        timings["first_decomposition"] = first_seconds
     if best is None:
         assert first_error is not None
         raise first_error

@@ -98,6 +98,56 @@ def test_other_decompositions_are_tried_only_while_none_is_support_free() -> Non
     assert timings["alternatives_tried"] == 1.0
 
 
+@dataclass
+class Clock:
+    """``time.perf_counter`` for the loop: each try takes the seconds given with it."""
+
+    now: float = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+@dataclass
+class TimedScript(Script):
+    """A :class:`Script` whose tries take the seconds given with them on ``clock``."""
+
+    clock: Clock = field(default_factory=Clock)
+    seconds: list[float] = field(default_factory=list)
+
+    def __call__(self, *args: object) -> Try[str]:
+        self.clock.now += self.seconds[len(self.asked)]
+        return super().__call__(*args)
+
+
+def _timed_script(clock: Clock, tries: list[tuple[Try[str] | Exception, float]]
+                  ) -> TimedScript:
+    return TimedScript([t for t, _ in tries], clock=clock, seconds=[s for _, s in tries])
+
+
+@pytest.mark.parametrize("first", [_try("seed0", 1, 1, 0.99),
+                                   SlicingError("sub-part 2, layer 6: no plane clears it")])
+def test_the_first_decompositions_seconds_are_named_when_another_is_kept(
+        monkeypatch: pytest.MonkeyPatch, first: Try[str] | Exception) -> None:
+    """The kept try's stages count its own decomposition's work only: the first one's tries,
+    set aside, are named apart (they were time no stage listed)."""
+    clock = Clock()
+    monkeypatch.setattr("slicer.repair.time.perf_counter", clock)
+    decomposed = _timed_script(clock, [(first, 40.0), (_try("seed1", 0, 0, 0.999), 7.0)])
+    timings: dict[str, float] = {}
+    assert best_decomposition(decomposed, 2, 3, FAILURES, timings).result == "seed1"
+    assert timings["first_decomposition"] == pytest.approx(40.0)
+    assert timings["alternatives"] == pytest.approx(7.0)
+    clock2 = Clock()
+    monkeypatch.setattr("slicer.repair.time.perf_counter", clock2)
+    kept = _timed_script(clock2, [(_try("seed0", 1, 1, 0.99), 40.0),
+                                  (_try("seed1", 2, 2, 0.99), 7.0),
+                                  (Refused("refused"), 3.0)])
+    timings = {}
+    assert best_decomposition(kept, 2, 3, FAILURES, timings).result == "seed0"
+    assert "first_decomposition" not in timings  # its stages are the kept try's own
+
+
 def test_a_support_free_first_decomposition_tries_no_other() -> None:
     decomposed = Script([_try("seed0", 0, 0, 0.999)])
     timings: dict[str, float] = {}
