@@ -1,4 +1,5 @@
-"""Hand-made print plans for the G-code, estimate and replay tests (no decomposition needed).
+"""Hand-made print plans for the G-code, estimate and replay tests (no decomposition needed),
+and a hand-made two-part decomposition for the planner's tests.
 
 A square prism is printed as layers of two square perimeters and a solid zigzag fill, on
 planes normal to any direction; the matching watertight mesh comes with it.
@@ -6,11 +7,15 @@ planes normal to any direction; the matching watertight mesh comes with it.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
+import manifold3d as m3
 import numpy as np
 import trimesh
 
 from kinematics.machine import MachineGeometry
 from kinematics.orient import solve_orientation
+from slicer.mesh.samples import to_trimesh
 from slicer.plan import Layer, Path, PrintPlan, SubpartPlan
 
 W = 0.45
@@ -108,3 +113,16 @@ def two_part_plan(geometry: MachineGeometry, tilt_deg: float = 30.0, half: float
     sps = [SubpartPlan(0, None, None, None, np.array([0.0, 0.0, 1.0]), root),
            SubpartPlan(1, 0, top, d, d, child)]
     return PrintPlan(np.eye(4), sps), d
+
+
+def two_part_decomposition(root: m3.Manifold, child: m3.Manifold, point: object,
+                           normal: object) -> SimpleNamespace:
+    """A decomposition of ``root`` on the platform and ``child`` printed on it from the base
+    plane through ``point`` with ``normal``, in that order (what the planner reads of one)."""
+    plane = SimpleNamespace(point=np.asarray(point, float), normal=np.asarray(normal, float))
+    subs = [SimpleNamespace(index=0, parent=None, mesh=to_trimesh(root), base_plane=None,
+                            build_direction=np.array([0, 0, 1.0])),
+            SimpleNamespace(index=1, parent=0, mesh=to_trimesh(child), base_plane=plane,
+                            build_direction=np.asarray(normal, float))]
+    return SimpleNamespace(placement=np.eye(4), subparts=subs, order=[0, 1],
+                           volume=root.volume() + child.volume())

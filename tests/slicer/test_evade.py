@@ -9,9 +9,9 @@ import manifold3d as m3
 import numpy as np
 import pytest
 import trimesh
+from handmade_plans import two_part_decomposition
 
 from kinematics.machine import MachineGeometry
-from slicer.mesh.samples import to_trimesh
 from slicer.paths import evade, planner
 from slicer.paths.layers import SlicingError
 from slicer.paths.planner import plan_print
@@ -92,13 +92,7 @@ def _pillar_scene(pillar_x: float) -> SimpleNamespace:
     mat[:, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
     rod = m3.Manifold.cylinder(20.0, 5.0, 5.0, 48).translate((0, 0, -5)).transform(mat)
     child = rod.translate((0, 0, 20.0)).trim_by_plane((0, 0, 1.0), 20.0)
-    plane = SimpleNamespace(point=np.array([0.0, 0.0, 20.0]), normal=np.array([0.0, 0.0, 1.0]))
-    subs = [SimpleNamespace(index=0, parent=None, mesh=to_trimesh(root), base_plane=None,
-                            build_direction=np.array([0, 0, 1.0])),
-            SimpleNamespace(index=1, parent=0, mesh=to_trimesh(child), base_plane=plane,
-                            build_direction=np.array([0, 0, 1.0]))]
-    return SimpleNamespace(placement=np.eye(4), subparts=subs, order=[0, 1],
-                           volume=root.volume() + child.volume())
+    return two_part_decomposition(root, child, [0.0, 0.0, 20.0], [0.0, 0.0, 1.0])
 
 
 def test_a_rod_turning_into_a_pillar_is_leaned_away_and_printed_after_the_root(

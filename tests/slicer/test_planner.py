@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import shapely
 import shapely.affinity
+from handmade_plans import two_part_decomposition
 
 from kinematics.machine import MachineGeometry
 from kinematics.transform import machine_direction
@@ -31,16 +32,6 @@ TILT = np.radians(30.0)
 AXIS = np.array([np.sin(TILT), 0.0, np.cos(TILT)])
 
 
-def _decomposition(root: m3.Manifold, child: m3.Manifold, point, normal) -> SimpleNamespace:
-    plane = SimpleNamespace(point=np.asarray(point, float), normal=np.asarray(normal, float))
-    subs = [SimpleNamespace(index=0, parent=None, mesh=to_trimesh(root), base_plane=None,
-                            build_direction=np.array([0, 0, 1.0])),
-            SimpleNamespace(index=1, parent=0, mesh=to_trimesh(child), base_plane=plane,
-                            build_direction=np.asarray(normal, float))]
-    return SimpleNamespace(placement=np.eye(4), subparts=subs, order=[0, 1],
-                           volume=root.volume() + child.volume())
-
-
 def _leaning() -> SimpleNamespace:
     """A cylinder R8 × 20 with a rod R5 leaning 30° standing on its top face."""
     root = m3.Manifold.cylinder(20.0, 8.0, 8.0, 48)
@@ -49,7 +40,7 @@ def _leaning() -> SimpleNamespace:
     mat[:, :3] = [[c, 0, s], [0, 1, 0], [-s, 0, c]]
     rod = m3.Manifold.cylinder(30.0, 5.0, 5.0, 48).translate((0, 0, -5)).transform(mat)
     child = rod.translate((0, 0, 20.0)).trim_by_plane((0, 0, 1.0), 20.0)
-    return _decomposition(root, child, [0, 0, 20.0], [0, 0, 1.0])
+    return two_part_decomposition(root, child, [0, 0, 20.0], [0, 0, 1.0])
 
 
 @pytest.fixture(scope="module")
@@ -173,7 +164,7 @@ def test_collision_with_printed_part_is_named() -> None:
     disc = m3.Manifold.cylinder(5.0, 25.0, 25.0, 48)
     pillar = m3.Manifold.cylinder(40.0, 4.0, 4.0, 32).translate((-14.0, 0.0, 0.0))
     child = m3.Manifold.cylinder(10.0, 5.0, 5.0, 48).translate((0.0, 0.0, 5.0))
-    dec = _decomposition(disc + pillar, child, [0, 0, 5.0], [0, 0, 1.0])
+    dec = two_part_decomposition(disc + pillar, child, [0, 0, 5.0], [0, 0, 1.0])
     with pytest.raises(SlicingError, match=r"sub-part 1, layer 0: .*printed part"):
         plan_print(dec, S, G, Printhead.default())
     thin = Printhead(((0.0, 50.0, 0.5, 0.5),))  # a needle clears the pillar

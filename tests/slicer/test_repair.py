@@ -4,6 +4,7 @@ are planned, which is kept, what is raised."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -132,14 +133,14 @@ def test_the_first_decompositions_seconds_are_named_when_another_is_kept(
     """The kept try's stages count its own decomposition's work only: the first one's tries,
     set aside, are named apart (they were time no stage listed)."""
     clock = Clock()
-    monkeypatch.setattr("slicer.repair.time.perf_counter", clock)
+    monkeypatch.setattr("slicer.repair.time", SimpleNamespace(perf_counter=clock))
     decomposed = _timed_script(clock, [(first, 40.0), (_try("seed1", 0, 0, 0.999), 7.0)])
     timings: dict[str, float] = {}
     assert best_decomposition(decomposed, 2, 3, FAILURES, timings).result == "seed1"
     assert timings["first_decomposition"] == pytest.approx(40.0)
     assert timings["alternatives"] == pytest.approx(7.0)
     clock2 = Clock()
-    monkeypatch.setattr("slicer.repair.time.perf_counter", clock2)
+    monkeypatch.setattr("slicer.repair.time", SimpleNamespace(perf_counter=clock2))
     kept = _timed_script(clock2, [(_try("seed0", 1, 1, 0.99), 40.0),
                                   (_try("seed1", 2, 2, 0.99), 7.0),
                                   (Refused("refused"), 3.0)])
