@@ -329,6 +329,8 @@ class _Slicing:
     t0: float
     timings: dict[str, float]
     runners_up: list[Decomposition] = field(default_factory=list)
+    tried: set[tuple[object, ...]] = field(default_factory=set)
+    """Signatures of the decompositions planned (:meth:`Decomposition.signature`)."""
 
     def seeded(self, k: int) -> DecomposeSettings | None:
         """The decomposition settings of the ``k``-th decomposition tried: the seed asked
@@ -364,10 +366,16 @@ class _Slicing:
                     timings: dict[str, float], t0: float) -> Try[SliceResult]:
         """Plan ``dec`` (a decomposition made, or the settings of one to make), then write,
         check and repair it."""
+        from slicer.decompose import Decomposition
+
         self.report("decomposing and planning")
         t1 = time.perf_counter()
+        if isinstance(dec, Decomposition):
+            self._unseen(dec)
         plan, seed, parts = self._plan(dec)
         timings["plan"] = time.perf_counter() - t1
+        if plan.decomposition is not None and not isinstance(dec, Decomposition):
+            self._unseen(plan.decomposition)
         mesh, index = self.mesh, self.index
         if plan.base is not None and plan.base.turn is not None:  # stands on another face
             mesh = _turned(mesh, plan.base, self.name, self.setup.platform_radius)
@@ -400,6 +408,14 @@ class _Slicing:
             timings["repair_rounds"] = float(done)
             best.result.timings.update({k: timings[k] for k in ("repair", "repair_rounds")})
         return best
+
+    def _unseen(self, dec: Decomposition) -> None:
+        """Remember ``dec``; :class:`repair.Refused` when one with the same sub-parts was
+        tried (another seed or K often ends in them): its tries would repeat."""
+        signature = dec.signature()
+        if signature in self.tried:
+            raise repair.Refused("the same sub-parts as a decomposition tried")
+        self.tried.add(signature)
 
     def _plan(self, dec: DecomposeSettings | Decomposition | None
               ) -> tuple[PrintPlan, int | None, int | None]:

@@ -64,6 +64,14 @@ class DecompositionError(ValueError):
     """The part cannot be decomposed into printable sub-parts; ``str()`` is one line."""
 
 
+class _NoPlane(DecompositionError):
+    """No plane cuts ``group`` from the piece of the group it is printed on."""
+
+    def __init__(self, message: str, group: int) -> None:
+        super().__init__(message)
+        self.group = group
+
+
 class RootRegionError(DecompositionError):
     """``settings.root`` names no coarse region; ``regions`` is how many there are."""
 
@@ -186,6 +194,21 @@ class Decomposition:
         return (f"{len(self.subparts)} sub-parts, seed {self.seed}, k={self.k} "
                 f"({len(self.attempts)} attempt{'s' if len(self.attempts) != 1 else ''}), "
                 f"overhang {self.overhang_area:.1f} mm² over {TOL.overhang_deg:g}°")
+
+    def signature(self) -> tuple[object, ...]:
+        """What makes two decompositions print alike: the placement, and every sub-part's
+        parent, base plane (offset to 0.1 mm, normal to 0.01) and volume (to 1 mm³), in build
+        order. Different seeds and K often end in the same sub-parts."""
+        subs = {s.index: s for s in self.subparts}
+        parts = []
+        for i in self.order:
+            s = subs[i]
+            plane = None if s.base_plane is None else (
+                round(float(np.dot(s.base_plane.point, s.base_plane.normal)), 1),
+                *np.round(np.asarray(s.base_plane.normal, dtype=float), 2).tolist())
+            parts.append((s.parent, plane, round(s.volume)))
+        return (tuple(np.round(np.asarray(self.placement, dtype=float), 3).ravel().tolist()),
+                tuple(parts))
 
     def to_json(self) -> dict[str, object]:
         """The ``decomposition.json`` payload (files named ``part_<k>.stl``)."""
@@ -343,8 +366,8 @@ def _attempt(mesh: trimesh.Trimesh, settings: DecomposeSettings, seed: int, k: i
         raise DecompositionError(str(exc)) from None
     clock.lap("build_order")
     solid = to_manifold(mesh)
-    subparts, order = _cut_all(mesh, solid, part, groups, replace(settings, seed=seed),
-                               machine, head)
+    subparts, order, groups = _cut_reparenting(mesh, solid, part, groups,
+                                               replace(settings, seed=seed), machine, head)
     clock.lap("planes_split")
     _verify(subparts, machine, head)
     clock.lap("verify")
@@ -389,6 +412,47 @@ class _Clock:
         now = time.perf_counter()
         self.laps[name] = self.laps.get(name, 0.0) + now - self.t
         self.t = now
+
+
+def _cut_reparenting(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition,
+                     groups: Groups, settings: DecomposeSettings, machine: MachineGeometry,
+                     head: Printhead) -> tuple[list[Subpart], list[int], Groups]:
+    """:func:`_cut_all`; when no plane cuts a group from the group it hangs on and that is
+    not the root, the group is hung on the nearest earlier ancestor it touches instead and
+    the cuts are made again, with the groups used.
+
+    Beyond the paper, whose build tree is the BFS tree of the regions: the groups are grown
+    by the longest shared boundary, which can hang a branch on a sibling branch that meets
+    it at the junction (three solid arms from one ball: each arm's plane must then keep
+    the head off the sibling printed before it, and none does), where the junction's own
+    group carries both."""
+    tried: set[tuple[int, int]] = set()
+    while True:
+        try:
+            subparts, order = _cut_all(mesh, solid, part, groups, settings, machine, head)
+            return subparts, order, groups
+        except _NoPlane as exc:
+            up = _touching_ancestor(groups, exc.group)
+            if up is None or (exc.group, up) in tried:
+                raise DecompositionError(str(exc)) from None
+            tried.add((exc.group, up))
+            log.debug("group %d hung on group %d instead of %s", exc.group, up,
+                      groups.parent[exc.group])
+            groups = replace(groups, parent=[up if i == exc.group else p
+                                             for i, p in enumerate(groups.parent)])
+
+
+def _touching_ancestor(groups: Groups, g: int) -> int | None:
+    """The nearest ancestor of group ``g`` above its parent whose regions share a boundary
+    with ``g``'s, or None."""
+    parent = groups.parent[g]
+    mine = groups.region_group == g
+    up = None if parent is None else groups.parent[parent]
+    while up is not None:
+        if groups.adjacency[np.ix_(mine, groups.region_group == up)].sum() > 0.0:
+            return up
+        up = groups.parent[up]
+    return None
 
 
 def _cut_all(mesh: trimesh.Trimesh, solid: m3.Manifold, part: Partition, groups: Groups,
@@ -506,7 +570,7 @@ def _find_plane(ctx: PieceContext, part: Partition, face_group: np.ndarray, grou
     # name a point on the part: the boundary point nearest the plane's (which may lie in
     # empty space once the search has moved the plane)
     where = pts[int(np.argmin(np.linalg.norm(pts - best.plane.point, axis=1)))]
-    raise DecompositionError(_failure(best, g, pg, total, where, ctx))
+    raise _NoPlane(_failure(best, g, pg, total, where, ctx), g)
 
 
 def nearest_reachable(direction: np.ndarray, a_limits: tuple[float, float],
