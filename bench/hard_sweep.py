@@ -89,7 +89,7 @@ def _sliced(kind: str, name: str, part: str, t: float) -> dict[str, object]:
 
 def line(r: dict[str, object]) -> str:
     """One slice's figures."""
-    head = f"{r['name']:<28} {r['t']:.1f} mm  {r['outcome']:<7}"
+    head = f"{r['name']:<28} {r['t']:<4g} mm  {r['outcome']:<7}"
     if r["outcome"] in ("pass", "walls"):
         return (f"{head} sub-parts {r['subparts']:>2}  walls {100 * r['walls']:6.2f} %  "
                 f"bad layers {r['bad']:>3} (over air {r['air']:>3})  collisions "
@@ -134,7 +134,7 @@ def main() -> None:
         share[(str(r["kind"]), float(r["t"]))].append(r["outcome"] == "pass")  # type: ignore[arg-type]
     print(f"\npass share ({time.perf_counter() - t0:.0f} s, {args.jobs} jobs):")
     for (kind, t), oks in sorted(share.items()):
-        print(f"  {kind:<6} {t:.1f} mm  {sum(oks):>3} / {len(oks):<3} "
+        print(f"  {kind:<6} {t:<4g} mm  {sum(oks):>3} / {len(oks):<3} "
               f"{100 * sum(oks) / len(oks):5.1f} %")
     everything = [r["outcome"] == "pass" for r in results]
     print(f"  all          {sum(everything):>3} / {len(everything):<3} "

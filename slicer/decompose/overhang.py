@@ -65,15 +65,23 @@ def overhanging_faces(mesh: trimesh.Trimesh, direction: np.ndarray, cuts: Sequen
     n = np.asarray(mesh.face_normals, dtype=float)
     c = np.asarray(mesh.triangles_center, dtype=float)
     over = n @ np.asarray(direction, dtype=float) < -np.sin(np.radians(limit_deg))
-    if cuts:
-        points = np.stack([np.asarray(p.point, dtype=float) for p in cuts])  # (m, 3)
-        normals = np.stack([np.asarray(p.normal, dtype=float) for p in cuts])  # (m, 3)
-        dist = np.abs(np.einsum("fk,mk->fm", c, normals) - (points * normals).sum(axis=1))
-        par = np.abs(n @ normals.T) > TOL.cut_cos  # (f, m)
-        over &= ~((dist < TOL.cut_tol) & par).any(axis=1)
+    over &= ~on_cuts(mesh, cuts)
     if on_platform:
         over &= ~((np.abs(c[:, 2]) < TOL.cut_tol) & (n[:, 2] < -TOL.cut_cos))
     return over
+
+
+def on_cuts(mesh: trimesh.Trimesh, cuts: Sequence[Plane]) -> np.ndarray:
+    """Which faces of ``mesh`` lie on one of the ``cuts``, parallel to it, (f,) bool."""
+    if not cuts:
+        return np.zeros(len(mesh.faces), dtype=bool)
+    n = np.asarray(mesh.face_normals, dtype=float)
+    c = np.asarray(mesh.triangles_center, dtype=float)
+    points = np.stack([np.asarray(p.point, dtype=float) for p in cuts])  # (m, 3)
+    normals = np.stack([np.asarray(p.normal, dtype=float) for p in cuts])  # (m, 3)
+    dist = np.abs(np.einsum("fk,mk->fm", c, normals) - (points * normals).sum(axis=1))
+    par = np.abs(n @ normals.T) > TOL.cut_cos  # (f, m)
+    return ((dist < TOL.cut_tol) & par).any(axis=1)
 
 
 def subpart_overhang(index: int, mesh: trimesh.Trimesh, direction: np.ndarray,

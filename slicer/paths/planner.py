@@ -30,6 +30,7 @@ from shapely.geometry.base import BaseGeometry
 from kinematics.errors import UnreachableDirection
 from kinematics.machine import MachineGeometry
 from kinematics.orient import solve_orientation
+from slicer.paths.child_tilt import cheapest_direction
 from slicer.paths.evade import OBSTACLES, candidates, tilted
 from slicer.paths.interfaces import ChildBase
 from slicer.paths.layer_workers import layer_processes, start_stages
@@ -226,14 +227,16 @@ class _Timer:
 
 def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np.ndarray, bool],
                    settings: ProcessSettings, machine: _Machine, timer: _Timer,
-                   lean: LeanPlan | None = None, evade: tuple[np.ndarray, float] | None = None
+                   lean: LeanPlan | None = None, evade: tuple[np.ndarray, float] | None = None,
+                   fixed: np.ndarray | None = None
                    ) -> tuple[list[LayerPlane], list[tuple[float, float]]]:
     """March one sub-part's layers; returns them with their (A, C).
 
     ``base`` is (point, normal, upright): an upright part (the root, the planar control) is
     sliced along the vertical through its base centre; others along their skeleton curve,
     their layers aimed ``evade = (away, degrees)`` off its tangent when given
-    (:mod:`slicer.paths.evade`). A piece of the root with a ``lean`` plan is sliced along the
+    (:mod:`slicer.paths.evade`), or turned to the ``fixed`` normal (3,) when given
+    (:mod:`slicer.paths.child_tilt`). A piece of the root with a ``lean`` plan is sliced along the
     root's axis from its base, its layers turning towards the plan's directions
     (:mod:`slicer.paths.lean`).
     """
@@ -256,6 +259,8 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
         curve = _curve(mesh, centre, base[1])
         if evade is not None:
             direction = tilted(curve, *evade)
+        elif fixed is not None:
+            direction = _constant(fixed)
     timer.lap("skeleton")
     poses: list[tuple[float, float]] = []
     machine.start(index)
@@ -272,6 +277,16 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
         machine.printed(_outline(layer.region, layer.origin, layer.frame, OBSTACLE_SPACING))
     timer.lap("layers")
     return layers, poses
+
+
+def _constant(normal: np.ndarray) -> Direction:
+    """Layer normals that are ``normal`` (3,) at every arc length."""
+    n = np.asarray(normal, dtype=float)
+
+    def direction(arc: np.ndarray) -> np.ndarray:
+        return np.tile(n, (len(np.atleast_1d(arc)), 1))
+
+    return direction
 
 
 def _child_base(index: int, mesh: trimesh.Trimesh, point: np.ndarray, normal: np.ndarray,
@@ -356,9 +371,11 @@ def _plan(decomposition: Decomposition, settings: ProcessSettings, geometry: Mac
         for k in decomposition.order:  # marching reads the printed state: in build order
             sp = subs[k]
             base = _base_of(sp)
+            fixed = None if k in leaned.plans else _child_direction(sp, decomposition,
+                                                                    settings, lean, hints)
             try:
                 layers, poses = _slice_evading(k, sp, base, settings, machine, timer,
-                                               leaned.plans.get(k))
+                                               leaned.plans.get(k), fixed)
             except SlicingError as exc:
                 child = _blocked_child(exc, leaned, defer)
                 if child is None:
@@ -389,13 +406,43 @@ def _plan(decomposition: Decomposition, settings: ProcessSettings, geometry: Mac
                      dict(timer.laps), getattr(decomposition, "base", None), source)
 
 
+def _child_direction(sp: Subpart, decomposition: Decomposition, settings: ProcessSettings,
+                     lean: LeanSettings | None, hints: LeanHints) -> np.ndarray | None:
+    """The fixed layer normal a sub-part printed on another takes instead of its skeleton's
+    against its overhang (:mod:`slicer.paths.child_tilt`), on a leaning try (``lean``)
+    only: the paper's try slices along the skeleton."""
+    if lean is None or sp.parent is None or sp.base_plane is None:
+        return None
+    point, normal = _base_of(sp)
+    centre, _, _ = _base_centre(_solid(sp.mesh), point, normal, settings.layer_height)
+    cuts = [sp.base_plane, *(c.base_plane for c in decomposition.subparts
+                             if c.parent == sp.index and c.base_plane is not None)]
+    return cheapest_direction(sp.mesh, _curve(sp.mesh, centre, normal), normal, cuts, lean,
+                              hints.weights(sp.mesh))
+
+
 def _slice_evading(k: int, sp: Subpart, base: tuple[np.ndarray, np.ndarray],
                    settings: ProcessSettings, machine: _Machine, timer: _Timer,
-                   lean: LeanPlan | None) -> tuple[list[LayerPlane], list[tuple[float, float]]]:
-    """:func:`_slice_subpart`, and when the head meets printed material or the platform on a
-    sub-part printed on another, again with its layers leaning away from it
-    (:mod:`slicer.paths.evade`); the first error when no lean marches through."""
+                   lean: LeanPlan | None, fixed: np.ndarray | None = None
+                   ) -> tuple[list[LayerPlane], list[tuple[float, float]]]:
+    """:func:`_slice_subpart`, its layers first turned to the ``fixed`` normal when given
+    (:mod:`slicer.paths.child_tilt`; along its skeleton when that march fails), and when
+    the head meets printed material or the platform on a sub-part printed on another, again
+    with its layers leaning away from it (:mod:`slicer.paths.evade`); the first error when
+    no lean marches through."""
     c0 = machine.c
+    if fixed is not None:
+        try:
+            out = _slice_subpart(k, sp.mesh, (*base, False), settings, machine, timer,
+                                 fixed=fixed)
+        except SlicingError as exc:
+            log.info("sub-part %d with its layers square to %s: %s; along its skeleton "
+                     "instead", k, np.round(fixed, 2).tolist(), exc)
+            machine.c = c0
+        else:
+            log.info("sub-part %d: layers square to %s, not its skeleton (less overhang)", k,
+                     np.round(fixed, 2).tolist())
+            return out
     try:
         return _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings, machine,
                               timer, lean)
