@@ -167,17 +167,29 @@ def test_refusal_names_a_point_on_the_part(gamma_mesh):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 5])
-def test_mushroom_is_refused_naming_the_overhang(seed):
-    """QA finding 1: seed 3 printed the cap's 655 mm² underside in the air."""
+def test_mushroom_is_refused_naming_the_overhang_or_its_cap_is_cut_off(seed):
+    """QA finding 1: seed 3 printed the cap's 655 mm² underside in the air. Now the cap's
+    underside is either named in a refusal (more overhang than the limit left on the stem),
+    or the cap is cut into sub-parts printed sideways and the stem keeps less than the
+    limit (seed 4, since a group hung on a sibling moves to the junction)."""
     mesh = mushroom()
-    with pytest.raises(DecompositionError) as err:
-        decompose(mesh, DecomposeSettings(seed=seed), MACHINE, HEAD, None, np.eye(4))
-    message = str(err.value)
-    assert "\n" not in message
-    assert re.search(r"sub-part 0 overhangs 6[45]\d mm²", message), message
-    point = named_point(message)
-    assert on_surface(mesh, point) < 0.1
-    assert point[2] == pytest.approx(20.0, abs=0.1)  # the cap's underside
+    limit = max(TOL.overhang_refuse_abs, TOL.overhang_refuse_rel * mesh.area)
+    try:
+        dec = decompose(mesh, DecomposeSettings(seed=seed), MACHINE, HEAD, None, np.eye(4))
+    except DecompositionError as err:
+        message = str(err)
+        assert "\n" not in message
+        found = re.search(r"sub-part 0 overhangs (\d+) mm²", message)
+        assert found and float(found.group(1)) > limit, message
+        point = named_point(message)
+        assert on_surface(mesh, point) < 0.1
+        assert point[2] == pytest.approx(20.0, abs=0.1)  # the cap's underside
+        return
+    from decompose_checks import check_decomposition
+
+    check_decomposition(mesh, dec, HEAD, MACHINE.a_limits)
+    assert len(dec.subparts) > 1
+    assert max(o.area for o in dec.overhang) <= limit
 
 
 # Results of the first attempt (sub-part volumes, mm³): the sample pipes pass first time.
