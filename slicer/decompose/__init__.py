@@ -27,7 +27,7 @@ from slicer.decompose.decomposition import (
     decompose,
     write_decomposition,
 )
-from slicer.decompose.overhang import overhanging_faces
+from slicer.decompose.overhang import on_cuts, overhanging_faces
 from slicer.decompose.planes import Plane, SearchSettings, plane_basis
 
 __all__ = [
@@ -40,6 +40,7 @@ __all__ = [
     "Subpart",
     "decompose",
     "decompose_on_bases",
+    "on_cuts",
     "overhanging_faces",
     "plane_basis",
     "write_decomposition",

@@ -27,8 +27,7 @@ from collections.abc import Sequence
 import numpy as np
 import trimesh
 
-from slicer.decompose import Plane
-from slicer.decompose.overhang import on_cuts
+from slicer.decompose import Plane, on_cuts
 from slicer.paths.lean_costs import DirectionGrid, LeanSettings, hinge
 from slicer.paths.skeleton import SkeletonCurve
 from slicer.planes2d import plane_frame
