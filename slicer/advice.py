@@ -7,13 +7,18 @@ default (a library caller), ``hostctl slice``'s options there (:data:`SLICE_OPTI
 ``hostctl print``'s for a daemon job (:data:`PRINT_OPTIONS`). A knob the caller has not is
 ``None`` and never suggested.
 
-A thinner layer is not suggested for unsupported walls: the support rule is an angle (45°),
-and thinner layers left as many such layers on the hard sample parts (``hard/tee_low.stl``:
-14 at 0.2 mm, 19 at 0.15 mm, 21 at 0.1 mm).
+A thinner layer is suggested for unsupported walls only where it holds them: the support rule
+is an angle (45°) plus a tenth of a line width, so thinner layers hold a wall a little
+steeper than 45° (a ball meeting its stem in a ring at 52.7°: ``hard_samples`` ball11, over
+air at 0.2 and 0.15 mm, held at 0.1 mm) and not a far steeper one (``hard/tee_low.stl``'s
+upright arch, before the closed loop: 14 layers over air at 0.2 mm, 19 at 0.15 mm, 21 at
+0.1 mm). :func:`thinner_layers` gives the height (:func:`slicer.replay.held_height` of the
+surface's overhang where the worst layer failed), when it is one worth printing.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,6 +26,7 @@ from slicer.replay import (
     BAD_LAYER_SHARE,
     OVERHANG_DEG,
     ReplayReport,
+    held_height,
     overhang_text,
     wall_layer_text,
 )
@@ -36,16 +42,20 @@ class Knobs:
         The decomposition's seed and coarse part count K.
     allow_overhang : str or None
         Writing (queueing) a file with unsupported wall layers anyway.
+    layer_height : str or None
+        The nominal layer height.
     """
 
     seed: str | None = "decompose.seed"
     parts: str | None = "decompose.parts"
     allow_overhang: str | None = "allow_overhang=True"
+    layer_height: str | None = "process.layer_height"
 
 
 CONFIG_KEYS = Knobs()
-SLICE_OPTIONS = Knobs("--seed", "--parts", "--allow-overhang")
-PRINT_OPTIONS = SLICE_OPTIONS  # hostctl print names them alike
+SLICE_OPTIONS = Knobs("--seed", "--parts", "--allow-overhang", "--layer-height")
+PRINT_OPTIONS = Knobs("--seed", "--parts", "--allow-overhang", None)  # sliced as configured
+THINNEST = 0.05  # mm: a thinner layer height is not suggested
 
 
 def overhang_message(layers: list[dict[str, Any]], seed: int | None,
@@ -65,18 +75,37 @@ def overhang_message(layers: list[dict[str, Any]], seed: int | None,
             f"{overhang_text(worst)}{more}; {advice}")
 
 
-def walls_message(report: ReplayReport, seed: int | None, knobs: Knobs = CONFIG_KEYS
-                  ) -> str:
+def walls_message(report: ReplayReport, seed: int | None, knobs: Knobs = CONFIG_KEYS,
+                  thinner: tuple[float, float] | None = None) -> str:
     """One line refusing a file with unsupported wall layers: how many, why, the worst (its
-    sub-part, layer, share and a point in the part's frame), and what to try."""
+    sub-part, layer, share and a point in the part's frame), and what to try; ``thinner`` is
+    (layer height, the surface's overhang in degrees) of :func:`thinner_layers`."""
     if seed is None:
         ways = ["slicing it five-axis (without --planar)"]
     else:
         ways = _decomposition(seed, knobs)
+    if thinner is not None and knobs.layer_height is not None:
+        ways.insert(0, f"{knobs.layer_height} {thinner[0]:.2f} or thinner (the walls there "
+                       f"overhang {thinner[1]:.0f}°, which that holds)")
     if knobs.allow_overhang is not None:
         ways.append(f"{knobs.allow_overhang} to write it as it is")
     return (f"{_walls_found(report)}; refusing to write the file: worst "
             f"{wall_layer_text(report.wall_layers[0])}{_try(ways)}")
+
+
+def thinner_layers(angle_deg: float, layer_height: float, line_width: float
+                   ) -> tuple[float, float] | None:
+    """(layer height, ``angle_deg``) to suggest for walls overhanging ``angle_deg`` that the
+    replay did not hold at ``layer_height``: the largest height that holds them
+    (:func:`slicer.replay.held_height`) rounded down to 0.01 mm, or None when that is not
+    below ``layer_height`` or is under :data:`THINNEST` (or the angle is nan)."""
+    held = held_height(angle_deg, line_width)
+    if not math.isfinite(held):
+        return None
+    held = math.floor(held * 100.0 + 1e-9) / 100.0
+    if not THINNEST <= held < layer_height:
+        return None
+    return held, angle_deg
 
 
 def walls_warning(report: ReplayReport, knobs: Knobs = CONFIG_KEYS) -> str:

@@ -26,7 +26,14 @@ from numpy.typing import ArrayLike
 
 from kinematics.machine import MachineGeometry
 from slicer import envelope, repair
-from slicer.advice import CONFIG_KEYS, Knobs, overhang_message, walls_message, walls_warning
+from slicer.advice import (
+    CONFIG_KEYS,
+    Knobs,
+    overhang_message,
+    thinner_layers,
+    walls_message,
+    walls_warning,
+)
 from slicer.gcode import Draft, E, MachineSetup, draft, parse_words
 from slicer.hugepages import small_pages
 from slicer.paths import LEAN, LeanHints, SlicingError, plan_print
@@ -45,6 +52,7 @@ from slicer.replay import (
     ReplayReport,
     WallSamples,
     model_index,
+    overhang_deg,
     replay_check,
     shell_depth,
     shell_grid,
@@ -525,7 +533,7 @@ def _judged(attempt: Try[SliceResult], policy: OverhangPolicy, last_seed: int | 
     result = replace(attempt.result, seed=attempt.seed, parts=attempt.parts)
     if attempt.report is None:
         return result
-    warning = walls_verdict(attempt.report, attempt.plan, last_seed, policy)
+    warning = walls_verdict(attempt.report, attempt.plan, last_seed, policy, attempt.thinner)
     return replace(result, warning=warning)
 
 
@@ -551,6 +559,7 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
     timings["gcode"] = time.perf_counter() - t1
     report: ReplayReport | None = None
     warning: str | None = None
+    thinner: tuple[float, float] | None = None
     if index is None:
         res = _timed(moves.finish, timings, "text")
     else:
@@ -558,7 +567,8 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
             text = writer.submit(_timed, moves.finish, timings, "text")
             stage("replay check")
             report = _replayed(moves, mesh, setup, index, timings, seed, policy.knobs)
-            warning = walls_verdict(report, plan, seed, policy) if judge else None
+            thinner = _thinner(report, plan, mesh, settings)
+            warning = walls_verdict(report, plan, seed, policy, thinner) if judge else None
             res = text.result()
     result = SliceResult(res.lines, len(plan.subparts),
                          sum(len(sp.layers) for sp in plan.subparts), _thickness(plan),
@@ -568,7 +578,26 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
                          time.perf_counter() - t0, plan if keep_plan else None,
                          walls=None if report is None else report.unsupported_walls,
                          warning=warning)
-    return Try(result, report, plan, seed)
+    return Try(result, report, plan, seed, thinner=thinner)
+
+
+def _thinner(report: ReplayReport, plan: PrintPlan, mesh: trimesh.Trimesh,
+             settings: ProcessSettings) -> tuple[float, float] | None:
+    """The thinner layers that would hold the report's wall layers
+    (:func:`~slicer.advice.thinner_layers` of the overhang of the surface around their
+    unsupported wall samples, each below its own layer's plane), or None."""
+    walls = report.unsupported_walls
+    if not report.wall_layers or not len(walls):
+        return None
+    normals = {(sp.index, k): layer.normal for sp in plan.subparts
+               for k, layer in enumerate(sp.layers)}
+    keys = list(zip(walls.subpart.tolist(), walls.layer.tolist(), strict=True))
+    known = np.array([key in normals for key in keys], dtype=bool)
+    if not known.any():
+        return None
+    axes = np.array([normals[key] for key, ok in zip(keys, known, strict=True) if ok])
+    angle = overhang_deg(walls.p[known], axes, mesh)
+    return thinner_layers(angle, settings.layer_height, settings.line_width)
 
 
 def _timed(fn: Callable[[], T], timings: dict[str, float], name: str) -> T:
@@ -601,15 +630,17 @@ def _replayed(moves: Draft, mesh: trimesh.Trimesh, setup: MachineSetup,
 
 
 def walls_verdict(rep: ReplayReport, plan: PrintPlan, seed: int | None,
-                  policy: OverhangPolicy) -> str | None:
+                  policy: OverhangPolicy, thinner: tuple[float, float] | None = None
+                  ) -> str | None:
     """``None`` for a file without unsupported wall layers; for one with them, the warning
     line when ``policy`` allows them, else :class:`UnsupportedWallsError` (one line: the
-    worst layer and what to try, ``marks`` the unsupported wall samples)."""
+    worst layer and what to try, thinner layers among it when ``thinner`` says they hold
+    it; ``marks`` the unsupported wall samples)."""
     if not rep.wall_layers:
         return None
     if policy.allow:
         return walls_warning(rep, policy.knobs)
-    raise UnsupportedWallsError(walls_message(rep, seed, policy.knobs), plan,
+    raise UnsupportedWallsError(walls_message(rep, seed, policy.knobs, thinner), plan,
                                 rep.unsupported_walls.p)
 
 

@@ -53,14 +53,16 @@ class Refused(Exception):
 @dataclass
 class Try(Generic[R]):
     """One plan's file: the result (the caller's type), its replay report (None unchecked),
-    the plan, and the decomposition seed (None: planar) and K (None: as configured) that
-    decompose it again."""
+    the plan, the decomposition seed (None: planar) and K (None: as configured) that
+    decompose it again, and the thinner layers that would hold its worst wall layer
+    ((layer height, overhang in degrees), :func:`slicer.advice.thinner_layers`), if any."""
 
     result: R
     report: ReplayReport | None
     plan: PrintPlan
     seed: int | None = None
     parts: int | None = None
+    thinner: tuple[float, float] | None = None
 
     @property
     def over_air(self) -> int:

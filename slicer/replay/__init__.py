@@ -8,7 +8,8 @@
   in the air; :mod:`~slicer.replay.coverage`: how much of the part the beads fill.
 * :mod:`~slicer.replay.walls`: the unsupported wall layers (:class:`WallLayer`) and their
   unsupported wall samples (:class:`WallSamples`), for a refusal to name and a preview to
-  mark.
+  mark; :mod:`~slicer.replay.steepness`: how steep the surface is there, and the layer
+  height that would hold it.
 * :mod:`~slicer.replay.collide` and :mod:`~slicer.replay.tip_hits`: head collisions with
   material printed before and with the platform.
 * :mod:`~slicer.replay.geometry`: distance to the surface and inside test of the model;
@@ -31,6 +32,7 @@ from slicer.replay.check import (
 )
 from slicer.replay.coverage import shell_depth, shell_grid
 from slicer.replay.geometry import ModelIndex
+from slicer.replay.steepness import held_height, overhang_deg
 from slicer.replay.support import BAD_LAYER_SHARE, OVERHANG_DEG
 from slicer.replay.walls import WallLayer, WallSamples, wall_layer_text
 
@@ -41,7 +43,9 @@ __all__ = [
     "ReplayReport",
     "WallLayer",
     "WallSamples",
+    "held_height",
     "model_index",
+    "overhang_deg",
     "overhang_text",
     "replay_check",
     "shell_depth",

@@ -16,7 +16,7 @@ import pytest
 import trimesh
 
 from kinematics.machine import MachineGeometry
-from slicer.advice import SLICE_OPTIONS, walls_message
+from slicer.advice import PRINT_OPTIONS, SLICE_OPTIONS, walls_message
 from slicer.mesh.samples import branched_pipe
 from slicer.pipeline import SliceResult, UnsupportedWallsError, slice_model
 from slicer.printhead import Printhead
@@ -140,9 +140,11 @@ def test_every_option_a_refusal_of_hostctl_slice_names_exists(allowed):
 
     rep = ReplayReport(**{k: v for k, v in allowed.replay.items() if k != "wall_layers"})
     rep.wall_layers = _layers(allowed.replay["wall_layers"])
-    msg = walls_message(rep, 0, SLICE_OPTIONS)
+    msg = walls_message(rep, 0, SLICE_OPTIONS, (0.13, 53.4))
     named = set(re.findall(r"--[a-z-]+", msg))
-    assert named == {"--seed", "--parts", "--allow-overhang"}
+    assert named == {"--seed", "--parts", "--allow-overhang", "--layer-height"}
+    assert "--layer-height 0.13 or thinner" in msg
+    assert "--layer-height" not in walls_message(rep, 0, PRINT_OPTIONS, (0.13, 53.4))
     (sub,) = [a for a in build_parser()._actions if hasattr(a, "choices") and a.choices
               and "slice" in a.choices]
     offered = {o for a in sub.choices["slice"]._actions for o in a.option_strings}
