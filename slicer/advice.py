@@ -13,7 +13,8 @@ steeper than 45° (a ball meeting its stem in a ring at 52.7°: ``hard_samples``
 air at 0.2 and 0.15 mm, held at 0.1 mm) and not a far steeper one (``hard/tee_low.stl``'s
 upright arch, before the closed loop: 14 layers over air at 0.2 mm, 19 at 0.15 mm, 21 at
 0.1 mm). :func:`thinner_layers` gives the height (:func:`slicer.replay.held_height` of the
-surface's overhang where the worst layer failed), when it is one worth printing.
+steepest surface near the unsupported walls, :func:`slicer.replay.overhang_deg`), when it
+is one worth printing.
 """
 
 from __future__ import annotations

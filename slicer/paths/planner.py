@@ -62,6 +62,7 @@ OBSTACLE_SPACING = 1.0  # mm between obstacle samples (printed surfaces and outl
 TIP_SPACING = 2.0  # mm between nozzle positions checked per layer
 CANDIDATE_SLACK = 1e-6  # mm: margin of the pre-filter of obstacle heights (≫ rounding)
 UP = np.array([0.0, 0.0, 1.0])
+FAR_END = 2.0  # layer heights of a sub-part a fixed-direction march may leave above its last
 
 _CURVES: dict[tuple, SkeletonCurve] = {}  # skeleton cache: (mesh hash, start, normal) → curve
 _SOLIDS: dict[int, tuple[trimesh.Trimesh, m3.Manifold]] = {}  # id(mesh) → (mesh, solid)
@@ -279,6 +280,17 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
     return layers, poses
 
 
+def _reaches_the_end(mesh: trimesh.Trimesh, layers: list[LayerPlane], t: float) -> bool:
+    """Whether the last of ``layers`` leaves at most ``FAR_END`` layer heights of ``mesh``
+    above its plane (a march stops at the first empty section: across a gap in the part
+    along its layers' normal, the rest would never be printed)."""
+    if not layers:
+        return False
+    last = layers[-1]
+    beyond = (np.asarray(mesh.vertices, dtype=float) - last.origin) @ last.frame[2]
+    return float(beyond.max()) <= FAR_END * t
+
+
 def _constant(normal: np.ndarray) -> Direction:
     """Layer normals that are ``normal`` (3,) at every arc length."""
     n = np.asarray(normal, dtype=float)
@@ -438,11 +450,14 @@ def _slice_evading(k: int, sp: Subpart, base: tuple[np.ndarray, np.ndarray],
         except SlicingError as exc:
             log.info("sub-part %d with its layers square to %s: %s; along its skeleton "
                      "instead", k, np.round(fixed, 2).tolist(), exc)
-            machine.c = c0
         else:
-            log.info("sub-part %d: layers square to %s, not its skeleton (less overhang)", k,
-                     np.round(fixed, 2).tolist())
-            return out
+            if _reaches_the_end(sp.mesh, out[0], settings.layer_height):
+                log.info("sub-part %d: layers square to %s, not its skeleton (less "
+                         "overhang)", k, np.round(fixed, 2).tolist())
+                return out
+            log.info("sub-part %d with its layers square to %s ends short of its far end; "
+                     "along its skeleton instead", k, np.round(fixed, 2).tolist())
+        machine.c = c0
     try:
         return _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings, machine,
                               timer, lean)

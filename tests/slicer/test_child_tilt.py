@@ -107,3 +107,26 @@ def test_a_branch_that_takes_in_the_tubes_rim_is_printed_support_free(tmp_path) 
     rep = res.replay
     assert rep["unsupported_wall_layers"] == []
     assert float(rep["wall_supported"]) >= WALLS_HELD and rep["collisions"] == 0
+
+
+def test_a_march_that_ends_short_of_the_sub_parts_far_end_is_not_taken() -> None:
+    """A march stops at its first empty section; across a gap along a fixed normal the rest
+    of the sub-part would never be printed, and the planner marches along the skeleton."""
+    from types import SimpleNamespace
+
+    from slicer.paths.planner import FAR_END, _reaches_the_end
+
+    box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
+    box.apply_translation((0.0, 0.0, 5.0))
+    t = 0.2
+
+    def last(z: float, normal: tuple[float, float, float]) -> list[SimpleNamespace]:
+        n = _unit(np.asarray(normal, dtype=float))
+        frame = np.vstack([np.zeros(3), np.zeros(3), n])
+        return [SimpleNamespace(origin=np.array([0.0, 0.0, z]), frame=frame)]
+
+    assert _reaches_the_end(box, last(10.0 - t, (0.0, 0.0, 1.0)), t)
+    assert _reaches_the_end(box, last(10.0 - FAR_END * t + 1e-6, (0.0, 0.0, 1.0)), t)
+    assert not _reaches_the_end(box, last(6.0, (0.0, 0.0, 1.0)), t)
+    assert not _reaches_the_end(box, last(10.0 - t, (1.0, 0.0, 1.0)), t)  # a corner left
+    assert not _reaches_the_end(box, [], t)
