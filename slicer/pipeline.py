@@ -567,7 +567,7 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
             text = writer.submit(_timed, moves.finish, timings, "text")
             stage("replay check")
             report = _replayed(moves, mesh, setup, index, timings, seed, policy.knobs)
-            thinner = _thinner(report, plan, mesh, settings)
+            thinner = None if policy.allow else _thinner(report, plan, mesh, settings)
             warning = walls_verdict(report, plan, seed, policy, thinner) if judge else None
             res = text.result()
     result = SliceResult(res.lines, len(plan.subparts),

@@ -28,7 +28,7 @@ import numpy as np
 import trimesh
 
 from slicer.decompose import Plane, on_cuts
-from slicer.paths.lean_costs import DirectionGrid, LeanSettings, hinge
+from slicer.paths.lean_costs import CHUNK, DirectionGrid, LeanSettings, hinge
 from slicer.paths.skeleton import SkeletonCurve
 from slicer.planes2d import plane_frame
 
@@ -71,9 +71,14 @@ def direction_prices(mesh: trimesh.Trimesh, cuts: Sequence[Plane], directions: n
         Weight and stricter limit (degrees) of every face, from the replay's hints.
     """
     n, _, area, margin = _priced_faces(mesh, cuts, hinted)
-    share = hinge(n @ np.asarray(directions, dtype=float).reshape(-1, 3).T,
-                  (settings.soft_deg - margin)[:, None], (settings.hard_deg - margin)[:, None])
-    return area @ share
+    dirs = np.asarray(directions, dtype=float).reshape(-1, 3)
+    soft, hard = (settings.soft_deg - margin)[:, None], (settings.hard_deg - margin)[:, None]
+    out = np.empty(len(dirs))
+    # (faces, CHUNK) temporaries: all ~600 cells at once would take 150 MB per array for a
+    # sub-part of 30 000 faces
+    for lo in range(0, len(dirs), CHUNK):
+        out[lo:lo + CHUNK] = area @ hinge(n @ dirs[lo:lo + CHUNK].T, soft, hard)
+    return out
 
 
 def skeleton_price(mesh: trimesh.Trimesh, curve: SkeletonCurve, cuts: Sequence[Plane],
