@@ -144,12 +144,15 @@ class InFlight:
                 out.append(sent)
         return out
 
-    def uncount(self) -> None:
-        """Release the credit of every transmission (the firmware's buffer is known empty)."""
+    def uncount(self, keep: Sent | None = None) -> None:
+        """Release the credit of every transmission but ``keep`` (the firmware's buffer is
+        known empty of every line it had whole)."""
         for sent in self._entries:
-            sent.counted = False
-        self.bytes = 0
-        self.lines = 0
+            if sent is not keep:
+                sent.counted = False
+        self.bytes = self.lines = 0
+        if keep is not None and keep.counted and any(s is keep for s in self._entries):
+            self.bytes, self.lines = keep.written, 1
 
     def clear(self) -> None:
         """Forget everything."""

@@ -31,8 +31,9 @@ rejects (bad checksum, wrong number) is answered at once, out of order, by ``Err
   rewinds per line;
 - window credit is the bytes of transmissions not yet answered: a success ``ok`` frees every
   transmission of the lines it executed, an error ``ok`` the oldest transmission at or after
-  ``k`` (the one rejected), and after a whole timeout of silence all credit is released (an
-  error ``ok`` after that also frees a line sent since: see ``_error_ok``);
+  ``k`` (the one rejected), and after a whole timeout of silence all credit is released but
+  a line's going out in parts (an error ``ok`` after that also frees a line sent since: see
+  ``_error_ok``);
 - with ADVANCED_OK, lines waiting in the firmware's command queue no longer use its receive
   buffer. Marlin sends ``ok N<k> P<p> B<b>`` after processing line ``k`` while ``k`` still
   holds its queue slot, so ``BUFSIZE - b`` slots hold ``k`` and the ``BUFSIZE - b - 1`` lines
@@ -89,8 +90,12 @@ acts only on complete lines, so nothing else goes on the wire until the line is 
   rejected like every other line of the old epoch, and its ``Resend`` is a duplicate;
 - no ``ok`` can be for it or a later line, nor can ``ok N.. B..`` show it read out, until it
   is whole;
-- a timeout releases all credit: the rest goes out, then the ``M105`` nudge (an ``M105``
-  going out in parts is answered before the nudge, so the first ``ok T:`` is its own);
+- a timeout releases all credit but its own: the rest goes out, then the ``M105`` nudge (an
+  ``M105`` going out in parts is answered before the nudge, so the first ``ok T:`` is its
+  own). Its answer is still to come: with its credit released, the error ``ok`` rejecting it
+  would be taken for a line sent since, and a drain would end one answer early, taking the
+  last answer for the ``M110``'s and running the acknowledgements one line ahead. If the
+  firmware swallowed it (a board fallen silent), the drain ends at the next timeout;
 - ``M112`` goes out right after the rest of the line. Ending the line early with a newline
   would be a byte or two faster, but it puts a truncated line in front of the firmware and
   relies on every dialect rejecting it (Marlin does: a prefix of a numbered line has no
@@ -871,7 +876,7 @@ class Protocol:
             self._out.append(Notice("timeout", (
                 f"no ok for {self.settings.ok_timeout:g} s while resynchronising after a "
                 f"request for line {self._resync_line}")))
-            self._inflight.uncount()  # as below: the firmware's buffer is empty
+            self._inflight.uncount(keep=self._partial)  # as below
             self._resync_timeout()
             return
         if self._nudged >= self.settings.nudges:
@@ -891,8 +896,10 @@ class Protocol:
         # flight no longer hold credit. A line being resent is the tickle it waits for;
         # otherwise a numbered M105, whose ``ok T:`` also resynchronises the ok count. The
         # line going out in parts is the exception: the firmware has not had it whole, so
-        # its answer is still to come, and if it is an M105 its ``ok T:`` is the first.
-        self._inflight.uncount()
+        # its answer is still to come (it keeps its credit: the error ``ok`` of a resend
+        # request is then not taken for a later line's), and if it is an M105 its
+        # ``ok T:`` is the first.
+        self._inflight.uncount(keep=self._partial)
         partial = self._partial
         self._m105.clear()
         if partial is not None and _is_m105(partial.item.command):

@@ -12,7 +12,7 @@ from typing import Any
 from unittest.mock import patch
 
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from link_harness import VirtualBench, assert_whole_valid_lines, job_log
 
@@ -85,6 +85,10 @@ def test_random_fault_schedules_execute_every_line_once_in_order(
 QUERIES = ("M105 T0", "M114")
 
 
+NOISY_PARTIAL = {"seed": 467408071, "bit_flip_prob": 0.01, "lost_ok_prob": 0.01, "busy_prob": 0.0,
+                 "advanced_ok": False, "rx_buffer_bytes": 127}
+
+
 def with_queries(commands: list[str], every: int,
                  queries: tuple[str, ...] = QUERIES) -> list[str]:
     """``commands`` with every ``every``-th replaced by a query, ``queries`` in turn."""
@@ -118,6 +122,11 @@ def assert_queries_answered(bench: VirtualBench, commands: list[str]) -> None:
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(knobs=faults, length=st.integers(1, 1500), every=st.integers(2, 60),
        flow=st.sampled_from(["window", "pingpong"]), partial=st.booleans())
+# found by CI: the ok of line 217 lost, then 218 corrupted while 219 went out in parts; the
+# timeout released the part-sent line's credit, so the error ok of its rejection was taken
+# for a later line's and the link ran one acknowledgement ahead (220: a line never ran)
+@example(knobs=NOISY_PARTIAL, length=264, every=28, flow="window", partial=True)
+@example(knobs=NOISY_PARTIAL, length=220, every=28, flow="window", partial=True)
 def test_every_query_is_answered_once_with_its_ok(
         knobs: dict[str, object], length: int, every: int, flow: str, partial: bool) -> None:
     commands = with_queries(sliced_like(length, int(knobs["seed"])), every)  # type: ignore[call-overload]
