@@ -28,6 +28,7 @@ from kinematics.machine import MachineGeometry
 from slicer import envelope, repair
 from slicer.advice import (
     CONFIG_KEYS,
+    THINNEST,
     Knobs,
     overhang_message,
     thinner_layers,
@@ -36,7 +37,7 @@ from slicer.advice import (
 )
 from slicer.gcode import Draft, E, MachineSetup, draft, parse_words
 from slicer.hugepages import small_pages
-from slicer.paths import LEAN, LeanHints, SlicingError, plan_print
+from slicer.paths import LEAN, NO_HINTS, LeanHints, SlicingError, Thinning, plan_print
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.repair import (
@@ -46,11 +47,13 @@ from slicer.repair import (
     best_decomposition,
     leaned_instead,
     repaired,
+    thinned,
 )
 from slicer.replay import (
     ModelIndex,
     ReplayReport,
     WallSamples,
+    held_heights,
     model_index,
     overhang_deg,
     replay_check,
@@ -168,6 +171,10 @@ class SliceResult:
     parts : int or None
         With ``seed``, the K that decomposes it again when the file was planned from another
         attempt of the decomposition than the first (``decompose.parts``); else None.
+    thinned : (int, float)
+        Layers marched thinner than the layer height where the surface overhangs a little
+        past what it holds (:mod:`slicer.paths.thin_layers`), and the thinnest of them, mm
+        ((0, 0.0): none).
     """
 
     lines: list[str]
@@ -186,6 +193,7 @@ class SliceResult:
     warning: str | None = None
     seed: int | None = None
     parts: int | None = None
+    thinned: tuple[int, float] = (0, 0.0)
 
     def summary(self) -> dict[str, object]:
         """The result without the G-code lines, the plan and the wall samples."""
@@ -226,6 +234,13 @@ def plan_model(mesh: trimesh.Trimesh, placement: np.ndarray, settings: ProcessSe
         nozzle_diameter=settings.nozzle_diameter)
     dec = decompose_on_bases(mesh, dec_settings, geometry, head, build_volume, placement)
     return plan_print(dec, settings, geometry, head)
+
+
+def _thinned(plan: PrintPlan, t: float) -> tuple[int, float]:
+    """How many layers of ``plan`` were marched thinner than ``t``, and the thinnest."""
+    thin = [layer.nominal for sp in plan.subparts for layer in sp.layers
+            if 0.0 < layer.nominal < t - 1e-9]
+    return len(thin), min(thin, default=0.0)
 
 
 def _thickness(plan: PrintPlan) -> tuple[float, float]:
@@ -398,7 +413,18 @@ class _Slicing:
             self.report("repair")
             replanned = plan_print(plan.decomposition, self.settings, self.geometry,
                                    self.head, lean=LEAN, hints=hints)
-            return replace(self._finish(mesh, replanned, index, {}, t2, seed), parts=parts)
+            return replace(self._finish(mesh, replanned, index, {}, t2, seed), parts=parts,
+                           hints=hints)
+
+        def thin(base: Try[SliceResult]) -> Try[SliceResult]:
+            assert plan.decomposition is not None
+            t2 = time.perf_counter()
+            self.report("repair")
+            replanned = plan_print(plan.decomposition, self.settings, self.geometry,
+                                   self.head, lean=None if base.hints is None else LEAN,
+                                   hints=base.hints or NO_HINTS, thin=self.thinning())
+            return replace(self._finish(mesh, replanned, index, {}, t2, seed), parts=parts,
+                           hints=base.hints)
 
         retry = again if plan.decomposition is not None and rounds != 0 else None
         leaned = 0
@@ -411,11 +437,18 @@ class _Slicing:
             first, leaned = leaned_instead(exc, retry, (SliceError, SlicingError)), 1
         t3 = time.perf_counter()
         best, done = repaired(first, retry, (SliceError, SlicingError), rounds, leaned)
+        best = thinned(best, thin if retry is not None else None, (SliceError, SlicingError))
         if done:
             timings["repair"] = timings.get("repair", 0.0) + time.perf_counter() - t3
             timings["repair_rounds"] = float(done)
             best.result.timings.update({k: timings[k] for k in ("repair", "repair_rounds")})
         return best
+
+    def thinning(self) -> Thinning:
+        """Thinner layers where the replay's support rule holds the surface at a height no
+        thinner than :data:`~slicer.advice.THINNEST`."""
+        width = self.settings.line_width
+        return Thinning(lambda angles: held_heights(angles, width), THINNEST)
 
     def _unseen(self, dec: Decomposition) -> None:
         """Remember ``dec``; :class:`repair.Refused` when one with the same sub-parts was
@@ -567,7 +600,7 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
             text = writer.submit(_timed, moves.finish, timings, "text")
             stage("replay check")
             report = _replayed(moves, mesh, setup, index, timings, seed, policy.knobs)
-            thinner = None if policy.allow else _thinner(report, plan, mesh, settings)
+            thinner = _thinner(report, plan, mesh, settings)
             warning = walls_verdict(report, plan, seed, policy, thinner) if judge else None
             res = text.result()
     result = SliceResult(res.lines, len(plan.subparts),
@@ -577,7 +610,7 @@ def _finish(mesh: trimesh.Trimesh, plan: PrintPlan, settings: ProcessSettings,
                          {**{f"plan.{k}": v for k, v in plan.timings.items()}, **timings},
                          time.perf_counter() - t0, plan if keep_plan else None,
                          walls=None if report is None else report.unsupported_walls,
-                         warning=warning)
+                         warning=warning, thinned=_thinned(plan, settings.layer_height))
     return Try(result, report, plan, seed, thinner=thinner)
 
 

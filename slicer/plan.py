@@ -54,7 +54,9 @@ class Layer:
     """One dynamic slice of a sub-part: a plane through ``origin`` normal to ``normal``.
 
     ``a`` and ``c`` are the table angles (degrees) that make ``normal`` machine +Z.
-    ``interface_child`` names the child whose base lies just above this (solid) layer.
+    ``interface_child`` names the child whose base lies just above this (solid) layer;
+    ``nominal`` is the layer height it was marched at (less than the settings' where the
+    march thinned it; 0 unknown).
     """
 
     subpart: int
@@ -67,6 +69,7 @@ class Layer:
     paths: list[Path] = field(default_factory=list)
     interface_child: int | None = None
     first_of_child: bool = False
+    nominal: float = 0.0
 
 
 @dataclass

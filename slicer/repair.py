@@ -63,6 +63,8 @@ class Try(Generic[R]):
     seed: int | None = None
     parts: int | None = None
     thinner: tuple[float, float] | None = None
+    hints: LeanHints | None = None
+    """The hints of a leaning try (None: upright), to plan it again."""
 
     @property
     def over_air(self) -> int:
@@ -136,6 +138,25 @@ def repaired(first: Try[R], again: Callable[[LeanHints], Try[R]] | None,
         if last.rank() < best.rank():
             best = last
     return best, done
+
+
+def thinned(best: Try[R], again: Callable[[Try[R]], Try[R]] | None,
+            failures: tuple[type[Exception], ...]) -> Try[R]:
+    """``best``, or ``again(best)``, the same plan made with thinner layers where the surface
+    overhangs a little past what the layer height holds
+    (:mod:`slicer.paths.thin_layers`), when that ranks better (:meth:`Try.rank`). Tried
+    only when ``best`` is not support-free and its unsupported walls lie on a surface
+    thinner layers hold (``best.thinner``: a ring at 50–60°, not a bore's arch)."""
+    if again is None or best.support_free or best.thinner is None:
+        return best
+    try:
+        other = again(best)
+    except failures as exc:
+        log.info("thinner layers failed: %s", exc)
+        return best
+    log.info("thinner layers: %d wall layers over air (%d before)", other.over_air,
+             best.over_air)
+    return other if other.rank() < best.rank() else best
 
 
 def best_decomposition(decomposed: Callable[[int, int], Try[R]], alternatives: int,

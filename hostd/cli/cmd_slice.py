@@ -157,6 +157,10 @@ def _summary(r: Any, out: Path, seconds: float) -> None:
         print(f"placed turned {turned:.0f}° from the file's orientation: the part's own "
               "bottom has no flat base to stand on, so it stands on its largest flat face")
     print(f"sub-parts {r.subparts}, layers {r.layers}, local thickness {lo:.3f}–{hi:.3f} mm")
+    count, thinnest = r.thinned
+    if count:
+        print(f"{count} layers thinner than the layer height (down to {thinnest:.3f} mm) where "
+              "the surface overhangs a little past what it holds")
     tried = int(r.timings.get("alternatives_tried", 0))
     if tried and r.seed is not None:  # the closed loop tried other decompositions
         again = f"--seed {r.seed}" + (f" --parts {r.parts}" if r.parts else "")

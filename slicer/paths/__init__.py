@@ -13,6 +13,8 @@
 * :mod:`~slicer.paths.upright`: the root's layers leaned against its overhangs
   (:mod:`~slicer.paths.lean`, priced by :mod:`~slicer.paths.lean_costs`) and cut into
   stacked pieces where the lean jumps (:mod:`~slicer.paths.columns`); beyond the paper.
+* :mod:`~slicer.paths.thin_layers`: thinner layers where the surface overhangs a little
+  past what the layer height holds (:class:`Thinning`); beyond the paper.
 * :mod:`~slicer.paths.subpart_paths`: a sub-part's layers on a thread pool, in three stages;
   :mod:`~slicer.paths.layer_workers`: stages 1 and 2 of long sub-parts in forked processes.
 
@@ -24,7 +26,8 @@ from __future__ import annotations
 from slicer.paths.layers import SlicingError
 from slicer.paths.lean_costs import LEAN, LeanSettings
 from slicer.paths.planner import plan_planar, plan_print
+from slicer.paths.thin_layers import Thinning
 from slicer.paths.upright import NO_HINTS, LeanHints
 
-__all__ = ["LEAN", "NO_HINTS", "LeanHints", "LeanSettings", "SlicingError", "plan_planar",
-           "plan_print"]
+__all__ = ["LEAN", "NO_HINTS", "LeanHints", "LeanSettings", "SlicingError", "Thinning",
+           "plan_planar", "plan_print"]

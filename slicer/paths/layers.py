@@ -25,7 +25,7 @@ plane hits a face of the model exactly; paths later lie on layer i's plane (its 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import manifold3d as m3
 import numpy as np
@@ -46,6 +46,10 @@ Accept = Callable[[np.ndarray, np.ndarray, BaseGeometry], "str | None"]
 #: ``direction(s (n,)) -> (n, 3)``: the normal the layers turn towards at arc lengths ``s``
 #: (default: the curve's tangent; :mod:`slicer.paths.lean` leans them off it).
 Direction = Callable[[np.ndarray], np.ndarray]
+
+#: ``thin(origin (3,), normal (3,), t) -> float``: the nominal thickness (at most ``t``) of
+#: the layer above the plane (origin, normal) (:func:`slicer.paths.thin_layers.layer_cap`).
+Thin = Callable[[np.ndarray, np.ndarray, float], float]
 
 
 class SlicingError(ValueError):
@@ -81,6 +85,9 @@ class LayerPlane:
         Smallest and largest local thickness over the region, mm.
     turn : float
         Angle between this normal and the one below, degrees.
+    nominal : float
+        The layer height it was marched at, mm: the settings', or less where the march
+        thinned it (:mod:`slicer.paths.thin_layers`); 0 unknown.
     """
 
     index: int
@@ -91,6 +98,7 @@ class LayerPlane:
     below: tuple[np.ndarray, np.ndarray]
     thickness: tuple[float, float]
     turn: float
+    nominal: float = 0.0
 
     @property
     def normal(self) -> np.ndarray:
@@ -179,8 +187,8 @@ def _try_plane(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray,
 
 def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLike,
                  base_normal: ArrayLike, ms: MarchSettings, accept: Accept | None = None,
-                 subpart: int = 0, direction: Direction | None = None
-                 ) -> Iterator[LayerPlane]:
+                 subpart: int = 0, direction: Direction | None = None,
+                 thin: Thin | None = None) -> Iterator[LayerPlane]:
     """March layer planes along ``curve`` from the base plane until the sections run out.
 
     A generator: each layer is yielded as soon as it is accepted, so the caller can update
@@ -201,6 +209,10 @@ def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLik
         Index used in error messages.
     direction : Direction, optional
         The normals to turn towards (default: the curve's tangent).
+    thin : Thin, optional
+        The next layer's nominal thickness from the plane below and ``ms.t``
+        (:func:`slicer.paths.thin_layers.layer_cap`); default ``ms.t`` throughout. A thinner
+        one scales its thickness bounds and turn with it.
 
     Raises
     ------
@@ -211,16 +223,22 @@ def march_layers(solid: m3.Manifold, curve: SkeletonCurve, base_origin: ArrayLik
     frame = plane_frame(below[1])
     s_prev, radius = 0.0, 0.0
     for i in range(ms.max_layers):
-        s, origin, target, max_turn, t_here = _step(curve, s_prev, below, radius, ms, i,
+        here = ms if thin is None else _thinned(ms, thin(below[0], below[1], ms.t))
+        s, origin, target, max_turn, t_here = _step(curve, s_prev, below, radius, here, i,
                                                     direction)
-        layer = _choose(solid, origin, frame, below, target, max_turn, ms, accept, subpart, i,
-                        t_here)
+        layer = _choose(solid, origin, frame, below, target, max_turn, here, accept, subpart,
+                        i, t_here)
         if layer is None:
             break
         layer.s = s
         yield layer
         below, frame, s_prev = (origin, layer.frame[2]), layer.frame, s
         radius = region_radius(layer.region) + 2.0 * ms.t
+
+
+def _thinned(ms: MarchSettings, t: float) -> MarchSettings:
+    """``ms`` for a layer of nominal thickness ``t`` (at most ``ms.t``)."""
+    return ms if t >= ms.t else replace(ms, t=t)
 
 
 def _step(curve: SkeletonCurve, s_prev: float, below: tuple[np.ndarray, np.ndarray],
@@ -274,7 +292,7 @@ def _choose(solid: m3.Manifold, origin: np.ndarray, frame: np.ndarray,
         ok_thick = ms.f_min * ms.t - 1e-9 <= lo and hi <= ms.f_max * ms.t + 1e-9
         reason = None if not ok_thick or accept is None else accept(origin, f, region)
         if ok_thick and reason is None:
-            return LayerPlane(index, 0.0, origin, f, region, below, (lo, hi), ang)
+            return LayerPlane(index, 0.0, origin, f, region, below, (lo, hi), ang, ms.t)
         turn = 0.0 if k >= MAX_HALVINGS else 0.5 * turn
         if ang == 0.0:
             break

@@ -45,6 +45,7 @@ from slicer.paths.lean import LeanPlan
 from slicer.paths.lean_costs import LEAN, LeanSettings
 from slicer.paths.skeleton import SkeletonCurve, line_curve, skeleton_curve
 from slicer.paths.subpart_paths import build_layers, pool, workers
+from slicer.paths.thin_layers import Thinning, capper
 from slicer.paths.upright import NO_HINTS, Leaned, LeanHints, lean_upright, turning_of
 from slicer.plan import Layer, PrintPlan, SubpartPlan
 from slicer.planes2d import from_plane, plane_frame, section, slicing_solid
@@ -229,7 +230,7 @@ class _Timer:
 def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np.ndarray, bool],
                    settings: ProcessSettings, machine: _Machine, timer: _Timer,
                    lean: LeanPlan | None = None, evade: tuple[np.ndarray, float] | None = None,
-                   fixed: np.ndarray | None = None
+                   fixed: np.ndarray | None = None, thin: Thinning | None = None
                    ) -> tuple[list[LayerPlane], list[tuple[float, float]]]:
     """March one sub-part's layers; returns them with their (A, C).
 
@@ -239,7 +240,8 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
     (:mod:`slicer.paths.evade`), or turned to the ``fixed`` normal (3,) when given
     (:mod:`slicer.paths.child_tilt`). A piece of the root with a ``lean`` plan is sliced along the
     root's axis from its base, its layers turning towards the plan's directions
-    (:mod:`slicer.paths.lean`).
+    (:mod:`slicer.paths.lean`). With ``thin``, layers are thinner where the surface
+    overhangs a little past what the nominal height holds (:mod:`slicer.paths.thin_layers`).
     """
     solid = _solid(mesh)
     centre, _, _ = _base_centre(solid, base[0], base[1], settings.layer_height)
@@ -270,8 +272,9 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
         return machine.accept(origin, frame, region)
 
     layers = []
+    cap = None if thin is None else capper(mesh, thin)
     for layer in march_layers(solid, curve, centre, base[1], _march(settings), accept, index,
-                              direction):
+                              direction, cap):
         layers.append(layer)
         poses.append(machine.pose)
         machine.c = machine.pose[1]
@@ -309,7 +312,7 @@ def _child_base(index: int, mesh: trimesh.Trimesh, point: np.ndarray, normal: np
 
 def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry: MachineGeometry,
                head: Printhead | None = None, lean: LeanSettings | None = None,
-               hints: LeanHints = NO_HINTS) -> PrintPlan:
+               hints: LeanHints = NO_HINTS, thin: Thinning | None = None) -> PrintPlan:
     """Slice a decomposition into a five-axis print plan.
 
     Parameters
@@ -328,6 +331,9 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
         the vertical, the paper's slicing.
     hints : LeanHints
         Where earlier tries printed walls in the air.
+    thin : Thinning, optional
+        Thinner layers where the surface overhangs a little too far for the layer height
+        (:mod:`slicer.paths.thin_layers`); ``None``: every layer nominal.
 
     Returns
     -------
@@ -342,13 +348,13 @@ def plan_print(decomposition: Decomposition, settings: ProcessSettings, geometry
     """
     head = Printhead.default() if head is None else head
     try:
-        return _plan(decomposition, settings, geometry, head, lean, hints, frozenset())
+        return _plan(decomposition, settings, geometry, head, lean, hints, frozenset(), thin)
     except _Blocked as blocked:
         log.info("%s; printing sub-part %d before the root above it", blocked.error,
                  blocked.child)
         try:
             return _plan(decomposition, settings, geometry, head, lean or LEAN, hints,
-                         frozenset({blocked.child}))
+                         frozenset({blocked.child}), thin)
         except SlicingError:
             raise blocked.error from None
 
@@ -362,8 +368,8 @@ class _Blocked(Exception):
 
 
 def _plan(decomposition: Decomposition, settings: ProcessSettings, geometry: MachineGeometry,
-          head: Printhead, lean: LeanSettings | None, hints: LeanHints, defer: frozenset[int]
-          ) -> PrintPlan:
+          head: Printhead, lean: LeanSettings | None, hints: LeanHints, defer: frozenset[int],
+          thin: Thinning | None = None) -> PrintPlan:
     """:func:`plan_print` with the root's children ``defer`` printed before the root above
     their base; raises :class:`_Blocked` when a sub-part on the root hit the printed root
     and nothing was deferred yet."""
@@ -387,7 +393,7 @@ def _plan(decomposition: Decomposition, settings: ProcessSettings, geometry: Mac
                                                                     settings, lean, hints)
             try:
                 layers, poses = _slice_evading(k, sp, base, settings, machine, timer,
-                                               leaned.plans.get(k), fixed)
+                                               leaned.plans.get(k), fixed, thin)
             except SlicingError as exc:
                 child = _blocked_child(exc, leaned, defer)
                 if child is None:
@@ -435,7 +441,8 @@ def _child_direction(sp: Subpart, decomposition: Decomposition, settings: Proces
 
 def _slice_evading(k: int, sp: Subpart, base: tuple[np.ndarray, np.ndarray],
                    settings: ProcessSettings, machine: _Machine, timer: _Timer,
-                   lean: LeanPlan | None, fixed: np.ndarray | None = None
+                   lean: LeanPlan | None, fixed: np.ndarray | None = None,
+                   thin: Thinning | None = None
                    ) -> tuple[list[LayerPlane], list[tuple[float, float]]]:
     """:func:`_slice_subpart`, its layers first turned to the ``fixed`` normal when given
     (:mod:`slicer.paths.child_tilt`; along its skeleton when that march fails), and when
@@ -446,7 +453,7 @@ def _slice_evading(k: int, sp: Subpart, base: tuple[np.ndarray, np.ndarray],
     if fixed is not None:
         try:
             out = _slice_subpart(k, sp.mesh, (*base, False), settings, machine, timer,
-                                 fixed=fixed)
+                                 fixed=fixed, thin=thin)
         except SlicingError as exc:
             log.info("sub-part %d with its layers square to %s: %s; along its skeleton "
                      "instead", k, np.round(fixed, 2).tolist(), exc)
@@ -460,7 +467,7 @@ def _slice_evading(k: int, sp: Subpart, base: tuple[np.ndarray, np.ndarray],
         machine.c = c0
     try:
         return _slice_subpart(k, sp.mesh, (*base, sp.parent is None), settings, machine,
-                              timer, lean)
+                              timer, lean, thin=thin)
     except SlicingError as exc:
         if sp.parent is None or lean is not None or exc.obstacle not in OBSTACLES \
                 or machine.head is None:
@@ -471,7 +478,7 @@ def _slice_evading(k: int, sp: Subpart, base: tuple[np.ndarray, np.ndarray],
         machine.c = c0
         try:
             out = _slice_subpart(k, sp.mesh, (*base, False), settings, machine, timer,
-                                 evade=(away, deg))
+                                 evade=(away, deg), thin=thin)
         except SlicingError:
             continue
         log.info("%s; leaning its layers %.0f° towards %s instead", first, deg,

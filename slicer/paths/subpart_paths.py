@@ -263,5 +263,5 @@ def _order_and_lift(index: int, job: LayerJob,
         flow = s.interface_flow if first_child else 1.0
         paths = _lift(paths2d, lp, s, factor, flow, first=(i == 0 and job.grounded))
         out.append(Layer(index, i, lp.origin.copy(), lp.normal.copy(), float(a), float(c),
-                         lp.thickness, paths, z.owner, first_child))
+                         lp.thickness, paths, z.owner, first_child, lp.nominal))
     return out

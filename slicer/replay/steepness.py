@@ -58,7 +58,14 @@ def overhang_deg(points: np.ndarray, axes: np.ndarray, mesh: trimesh.Trimesh) ->
 def held_height(angle_deg: float, line_width: float) -> float:
     """Largest layer height at which the support rule holds a wall overhanging
     ``angle_deg``, mm (inf up to 45°)."""
-    excess = math.tan(math.radians(angle_deg)) - math.tan(math.radians(OVERHANG_DEG))
-    if not excess > 0.0:
-        return math.inf
-    return LATERAL_SLACK * line_width / excess
+    return float(held_heights(np.array([angle_deg], dtype=float), line_width)[0])
+
+
+def held_heights(angles_deg: np.ndarray, line_width: float) -> np.ndarray:
+    """:func:`held_height` of each of ``angles_deg`` (k,) float: (k,) float, mm (inf up to
+    45°, 0 at 90°)."""
+    a = np.radians(np.clip(np.asarray(angles_deg, dtype=float), 0.0, 90.0))
+    excess = np.tan(a) - math.tan(math.radians(OVERHANG_DEG))
+    with np.errstate(divide="ignore"):
+        return np.where(excess > 0.0, LATERAL_SLACK * line_width / np.maximum(excess, 1e-300),
+                        math.inf)

@@ -1,0 +1,84 @@
+"""Thinner layers where a sub-part's surface overhangs a little past the limit.
+
+A wall that overhangs θ below a layer's plane steps ``t · tan θ`` outwards per layer, and
+the caller's rule (the replay's, :func:`slicer.replay.held_heights`) holds it up to a height
+that falls with θ: a ball wider than its stem meets it in a ring at 51–53° that no direction
+of planar layers holds all round at 0.2 mm, but layers of 0.14 mm there do. Far steeper
+surfaces (a bore's arch, a cut's underside) would need layers too thin to print
+(``thinnest``): they are left to the decomposition and the lean, and do not thin a layer.
+
+:func:`layer_cap` is the thickness of the next layer of a march: the nominal one, or the
+largest height that holds every face of the sub-part in the slab one nominal layer above the
+plane below that such a height can hold at all. Only the faces facing down across the layer
+count, each by the steepness of its own plane; the slab is taken along the plane below's
+normal (a layer turns a few degrees at most).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import trimesh
+
+HeldHeights = Callable[[np.ndarray], np.ndarray]
+"""Overhang angles (k,) degrees → the layer heights (k,) mm the support rule holds them at
+(inf where it holds them at any height)."""
+
+
+@dataclass(frozen=True)
+class Thinning:
+    """How a march thins its layers: the support rule's ``held`` heights, and the thinnest
+    layer worth printing (mm)."""
+
+    held: HeldHeights
+    thinnest: float
+
+
+@dataclass(frozen=True)
+class SteepFaces:
+    """A sub-part's surface for :func:`layer_cap`: vertices (v, 3), faces (f, 3) int and
+    their unit normals (f, 3)."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    normals: np.ndarray
+
+    @classmethod
+    def of(cls, mesh: trimesh.Trimesh) -> SteepFaces:
+        """The faces of ``mesh`` (degenerate ones, without a normal, left out)."""
+        normals = np.asarray(mesh.face_normals, dtype=float)
+        keep = np.linalg.norm(normals, axis=1) > 0.5
+        return cls(np.asarray(mesh.vertices, dtype=float),
+                   np.asarray(mesh.faces, dtype=np.int64)[keep], normals[keep])
+
+
+def layer_cap(surface: SteepFaces, origin: np.ndarray, normal: np.ndarray, t: float,
+              thinning: Thinning) -> float:
+    """The next layer's thickness above the plane (``origin``, unit ``normal``) below it:
+    ``t``, or less where a face of ``surface`` within ``t`` above that plane overhangs past
+    what ``t`` holds and a layer no thinner than ``thinning.thinnest`` holds it (mm)."""
+    height = (surface.vertices - np.asarray(origin, dtype=float)) @ normal
+    h = height[surface.faces]
+    near = (h.min(axis=1) < t) & (h.max(axis=1) > 0.0)
+    down = -(surface.normals[near] @ normal)
+    steep = down > np.sin(np.radians(45.0))
+    if not steep.any():
+        return t
+    angles = np.degrees(np.arcsin(np.clip(down[steep], -1.0, 1.0)))
+    held = thinning.held(angles)
+    fixable = held[(held >= thinning.thinnest) & (held < t)]
+    return float(fixable.min()) if len(fixable) else t
+
+
+def capper(mesh: trimesh.Trimesh, thinning: Thinning
+           ) -> Callable[[np.ndarray, np.ndarray, float], float]:
+    """:func:`layer_cap` over the surface of ``mesh``, as a march takes it
+    (``thin(origin, normal, t)``)."""
+    surface = SteepFaces.of(mesh)
+
+    def thin(origin: np.ndarray, normal: np.ndarray, t: float) -> float:
+        return layer_cap(surface, origin, normal, t, thinning)
+
+    return thin

@@ -1,0 +1,107 @@
+"""Thinner layers where the surface overhangs a little past what the layer height holds
+(slicer.paths.thin_layers): the cap of one layer, a march through a flared collar, and the
+closed loop holding a ball on its stem at 0.2 mm that no lean holds."""
+
+from __future__ import annotations
+
+import math
+
+import manifold3d as m3
+import numpy as np
+import pytest
+
+from kinematics.machine import MachineGeometry
+from slicer.advice import THINNEST
+from slicer.mesh import to_trimesh
+from slicer.mesh.hard_samples import hard_variant
+from slicer.paths import Thinning
+from slicer.paths.layers import MarchSettings, march_layers
+from slicer.paths.skeleton import line_curve
+from slicer.paths.thin_layers import SteepFaces, capper, layer_cap
+from slicer.pipeline import slice_model
+from slicer.planes2d import slicing_solid
+from slicer.replay import held_height, held_heights
+from slicer.settings import ProcessSettings
+
+W, T = 0.45, 0.2
+RULE = Thinning(lambda angles: held_heights(angles, W), THINNEST)
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def collar(flare: float, r: float = 6.0, stem: float = 5.0, rise: float = 3.0,
+           top: float = 4.0) -> m3.Manifold:
+    """A stem of radius ``r``, a collar widening at ``flare`` degrees off the vertical for
+    ``rise`` mm above it, and a straight cylinder on top."""
+    r1 = r + rise * math.tan(math.radians(flare))
+    parts = [m3.Manifold.cylinder(stem, r, r, 128),
+             m3.Manifold.cylinder(rise, r, r1, 128).translate((0.0, 0.0, stem)),
+             m3.Manifold.cylinder(top, r1, r1, 128).translate((0.0, 0.0, stem + rise))]
+    return m3.Manifold.batch_boolean(parts, m3.OpType.Add)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_layer_in_a_flare_the_rule_can_hold_is_capped_at_its_held_height(seed: int) -> None:
+    flare = float(np.random.default_rng(seed).uniform(51.5, 58.0))  # held under 0.2 mm
+    surface = SteepFaces.of(to_trimesh(collar(flare)))
+    z = float(np.random.default_rng(seed + 10).uniform(5.2, 7.5))  # inside the collar
+    cap = layer_cap(surface, np.array([0.0, 0.0, z]), UP, T, RULE)
+    assert THINNEST <= cap < T
+    assert cap == pytest.approx(held_height(flare, W), rel=5e-3)  # a 128-gon cone
+    # a layer so thin steps exactly the rule's 45° plus its slack out per layer
+    assert cap * math.tan(math.radians(flare)) == pytest.approx(cap + 0.1 * W, rel=5e-3)
+
+
+@pytest.mark.parametrize(("flare", "z"), [(30.0, 6.0), (49.5, 6.0), (52.0, 2.0), (52.0, 9.5)])
+def test_a_layer_the_height_already_holds_keeps_it(flare: float, z: float) -> None:
+    """A flare within 45°, or past it by less than 0.2 mm layers hold (up to 50.8° at
+    w = 0.45), or a layer of the stem or the top (away from the collar)."""
+    surface = SteepFaces.of(to_trimesh(collar(flare)))
+    assert layer_cap(surface, np.array([0.0, 0.0, z]), UP, T, RULE) == T
+
+
+def test_a_surface_no_printable_layer_holds_does_not_thin_the_layer() -> None:
+    """The collar's underside at 80° (and a ledge at 90°) would need layers under
+    THINNEST: they are left to the decomposition, the layer stays nominal."""
+    surface = SteepFaces.of(to_trimesh(collar(80.0, rise=0.5)))
+    assert held_height(80.0, W) < THINNEST
+    assert layer_cap(surface, np.array([0.0, 0.0, 5.1]), UP, T, RULE) == T
+
+
+@pytest.mark.parametrize("flare", [52.0, 56.0])
+def test_a_march_thins_exactly_the_layers_of_the_collar(flare: float) -> None:
+    solid = collar(flare)
+    mesh = to_trimesh(solid)
+    ms = MarchSettings(T, 0.5, 1.5)
+    curve = line_curve(np.zeros(3), UP, 13.0)
+    plain = list(march_layers(slicing_solid(mesh), curve, np.zeros(3), UP, ms))
+    thin = list(march_layers(slicing_solid(mesh), curve, np.zeros(3), UP, ms,
+                             thin=capper(mesh, RULE)))
+    held = held_height(flare, W)
+    tops = np.array([la.origin[2] for la in thin])
+    nominal = np.array([la.nominal for la in thin])
+    bottoms = tops - nominal
+    in_collar = (bottoms < 8.0 - 1e-6) & (tops > 5.0 + 1e-6)
+    assert np.all(nominal[in_collar] == pytest.approx(held, rel=5e-3))
+    # away from the collar (a layer's slab reaching one nominal height into it excepted)
+    clear = (tops < 5.0 - T) | (bottoms > 8.0)
+    assert np.all(nominal[clear] == T)
+    assert tops[-1] == pytest.approx(plain[-1].origin[2], abs=T)  # both reach the top
+    assert len(thin) - len(plain) == pytest.approx(3.0 / held - 3.0 / T, abs=3)
+    # each layer is as thick as marched: its planes stand nominal apart
+    assert np.allclose(np.diff(np.concatenate([[0.0], tops])), nominal, atol=1e-6)
+
+
+def test_the_closed_loop_holds_a_ball_on_its_stem_with_thinner_layers_there(tmp_path) -> None:
+    """ball11 of the sweep (a 9.9 mm ball on a 6 mm stem, a ring at 52.7° all round): no
+    lean holds the ring at 0.2 mm (refused with ``repair_rounds=0``,
+    test_steepness); the closed loop's try with thinner layers there does."""
+    variant = hard_variant(11)
+    path = tmp_path / f"{variant.name}.stl"
+    variant.mesh().export(path)
+    res = slice_model(path, ProcessSettings(layer_height=T, line_width=W), MachineGeometry(),
+                      repair_rounds=1)
+    assert res.replay["unsupported_wall_layers"] == []
+    assert res.replay["wall_supported"] >= 0.998
+    count, thinnest = res.thinned
+    assert 0 < count < res.layers / 2  # only around the ring
+    assert THINNEST <= thinnest <= held_height(52.7, W) + 1e-9
