@@ -13,9 +13,9 @@ with more than 5 % of its wall points unsupported (issue 8's rule: a wall point 
 sparse infill inside the part is held),
 no head collision and >= 99 % of the material inside the model. One line per slice
 (sub-parts, walls, unsupported wall layers and those of them over air, collisions, inside,
-seconds, retry rounds, other decomposition seeds tried and the seed kept, the first three
-unsupported wall layers), then the pass
-share per class and height. Outcomes other than a
+the share of the model's shell the beads reach, the layers thinned, seconds, retry rounds,
+other decomposition seeds tried and the seed kept, the first three unsupported wall
+layers), then the pass share per class and height. Outcomes other than a
 pass: ``walls`` (the file ``hostctl slice`` refuses, or writes with --allow-overhang, which
 the bench sets to measure it; a file with unsupported wall layers that all bridge sparse
 infill is written), ``refused`` (refused before a file: the decomposition or the planner,
@@ -80,6 +80,7 @@ def _sliced(kind: str, name: str, part: str, t: float) -> dict[str, object]:
         out.update(outcome="pass" if ok else "walls", subparts=res.subparts, walls=walls,
                    bad=len(bad), air=int(rep.get("wall_layers_over_air", 0)),
                    collisions=rep["collisions"], inside=inside,
+                   shell=float(rep["shell_coverage"]), thinned=res.thinned[0],
                    rounds=int(res.timings.get("repair_rounds", 0)),
                    others=int(res.timings.get("alternatives_tried", 0)), seed=res.seed,
                    where=", ".join(str(w) for w in bad[:3]))
@@ -94,7 +95,8 @@ def line(r: dict[str, object]) -> str:
         return (f"{head} sub-parts {r['subparts']:>2}  walls {100 * r['walls']:6.2f} %  "
                 f"bad layers {r['bad']:>3} (over air {r['air']:>3})  collisions "
                 f"{r['collisions']}  inside "
-                f"{100 * r['inside']:6.2f} %  retries {r['rounds']}  other seeds "
+                f"{100 * r['inside']:6.2f} %  shell {100 * r['shell']:6.2f} %  thinned "
+                f"{r['thinned']:>3}  retries {r['rounds']}  other seeds "
                 f"{r['others']} (kept {r['seed']})  {r['seconds']:6.1f} s"
                 + (f"  [{r['where']}]" if r["where"] else ""))
     return f"{head} {r['seconds']:6.1f} s  {r['reason']}"
