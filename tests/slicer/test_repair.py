@@ -3,7 +3,7 @@ are planned, which is kept, what is raised."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from types import SimpleNamespace
 
 import numpy as np
@@ -11,7 +11,14 @@ import pytest
 
 from slicer.paths import NO_HINTS, LeanHints, SlicingError
 from slicer.plan import PrintPlan
-from slicer.repair import ALTERNATIVE_ROUNDS, Refused, Try, best_decomposition, repaired
+from slicer.repair import (
+    ALTERNATIVE_ROUNDS,
+    Refused,
+    Try,
+    best_decomposition,
+    repaired,
+    thinned,
+)
 from slicer.replay import ReplayReport, WallSamples
 
 FAILURES = (SlicingError, Refused)
@@ -180,3 +187,32 @@ def test_a_failure_not_listed_stops_at_once() -> None:
     decomposed = Script([ValueError("a bug"), _try("seed1", 0, 0, 1.0)])
     with pytest.raises(ValueError, match="a bug"):
         best_decomposition(decomposed, 2, 3, FAILURES, {})
+
+
+RING = (0.13, 53.2)  # (layer height, overhang °) that holds the unsupported walls
+
+
+def test_a_failing_try_on_a_surface_thinner_layers_hold_is_made_again_thinned() -> None:
+    best = replace(_try("lean", 1, 1, 0.999), thinner=RING, hints=NO_HINTS)
+    again = Script([_try("thin", 0, 0, 1.0)])
+    assert thinned(best, again, FAILURES).result == "thin"
+    assert again.asked == [(best,)]  # the try itself: its lean and hints are made again
+
+
+@pytest.mark.parametrize("outcome", ["worse", "fails"])
+def test_a_thinned_try_no_better_or_failing_leaves_the_best(outcome: str) -> None:
+    best = replace(_try("lean", 1, 1, 0.999), thinner=RING)
+    other = _try("thin", 2, 2, 0.99) if outcome == "worse" else SlicingError("no plane")
+    assert thinned(best, Script([other]), FAILURES) is best
+
+
+@pytest.mark.parametrize("case", ["support-free", "steep", "no loop"])
+def test_no_thinned_try_where_it_cannot_help(case: str) -> None:
+    """A support-free try, walls on a surface too steep for any printable layer (a bore's
+    arch: no ``thinner``), or a slice without the loop."""
+    best = _try("lean", 0, 0, 1.0) if case == "support-free" else _try("lean", 1, 1, 0.99)
+    if case != "steep":
+        best = replace(best, thinner=RING)
+    again = Script([])
+    assert thinned(best, None if case == "no loop" else again, FAILURES) is best
+    assert again.asked == []
