@@ -28,7 +28,14 @@ from kinematics.machine import MachineGeometry
 from kinematics.orient import nearest_reachable_direction
 from slicer.decompose.buildorder import MERGE_ANGLE, Groups, group_regions_refined, root_region
 from slicer.decompose.overhang import Overhang, decomposition_overhang
-from slicer.decompose.partition import K_MIN, Partition, analysis_mesh, auto_k, coarse_partition
+from slicer.decompose.partition import (
+    K_MAX,
+    K_MIN,
+    Partition,
+    analysis_mesh,
+    auto_k,
+    coarse_partition,
+)
 from slicer.decompose.plane_refine import ParentFrame, refine_plane, splits_clear
 from slicer.decompose.planes import (
     Check,
@@ -336,8 +343,12 @@ def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings
     with an automatic K the i-th retry also coarsens it to K₀/i (never below ``K_MIN``):
     k-means over-segments box-like parts into many flat patches whose groups often leave a
     horizontal overhang with the root, and coarser patches group it right (Γ bracket: K 24
-    gives a valid split for 5 of 31 seeds, K 6–8 for 12 of 12). A fixed ``--root`` names a
-    region of the configured seed's partition, so it gets no retries.
+    gives a valid split for 5 of 31 seeds, K 6–8 for 12 of 12). The last retry of an
+    automatic K refines it to 2·K₀ instead (at most ``K_MAX``): K₀ counts patches about a
+    tube wide, too few for a ball with arms spread in three directions (the sweep's ball31,
+    K₀ 3: every coarser attempt kept an arm in the ball's root, 253–385 mm² over air; K 4–6
+    cut all three off in 11 of 12 seeds). A fixed ``--root`` names a region of the
+    configured seed's partition, so it gets no retries.
     """
     yield settings.seed, settings.parts
     if settings.root is not None:
@@ -346,6 +357,8 @@ def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings
     for i in range(1, TOL.retry_seeds + 1):
         seed = (settings.seed + i * 1_000_003) % 2**31
         k = settings.parts or max(K_MIN, round(k0 / i))
+        if i == TOL.retry_seeds and not settings.parts and k0 < K_MAX:
+            k = min(K_MAX, 2 * k0)
         yield seed, k
 
 
