@@ -122,3 +122,29 @@ def test_the_loop_passes_over_a_decomposition_it_has_tried(
     other.seed = dec.seed + 1
     with pytest.raises(repair.Refused, match="same sub-parts"):
         _Slicing._unseen(slicing, other)  # type: ignore[arg-type]
+
+
+def test_the_last_retry_of_an_automatic_k_is_finer_the_others_coarser() -> None:
+    mesh, _ = place_on_platform(repair_mesh(hard_variant(31).mesh()))
+    plan = list(decomposition.attempt_plan(mesh, DecomposeSettings()))
+    k0 = plan[1][1]  # the first retry keeps K0
+    assert plan[0] == (0, 0) and len(plan) == 1 + decomposition.TOL.retry_seeds
+    assert [k for _, k in plan[1:-1]] == sorted((k for _, k in plan[1:-1]), reverse=True)
+    assert plan[-1][1] == min(2 * k0, decomposition.K_MAX) > k0
+    fixed = list(decomposition.attempt_plan(mesh, DecomposeSettings(parts=5)))
+    assert {k for _, k in fixed} == {5}  # a K asked for is kept in every retry
+
+
+def test_a_ball_with_three_arms_from_its_stl_gets_every_arm_cut_off(tmp_path) -> None:
+    """ball31 of the sweep (three arms at 19-24° from a ball on a stem), read from its STL
+    as ``hostctl slice`` does: every attempt at K0 = 3 or coarser kept an arm in the ball's
+    root (253-385 mm² over 45°, refused); the finer last retry cuts all three off."""
+    variant = hard_variant(31)
+    path = tmp_path / f"{variant.name}.stl"
+    variant.mesh().export(path)
+    mesh = trimesh.load_mesh(path)
+    dec = decompose(mesh, DecomposeSettings(), MACHINE, HEAD)
+    assert len(dec.subparts) == 4  # the ball and its stem, three arms
+    assert max(o.area for o in dec.overhang) < 0.05 * mesh.area
+    placed, _ = place_on_platform(repair_mesh(mesh))
+    check_decomposition(placed, dec, HEAD, MACHINE.a_limits)
