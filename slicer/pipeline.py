@@ -59,6 +59,7 @@ from slicer.replay import (
     replay_check,
     shell_depth,
     shell_grid,
+    thickness_step,
 )
 from slicer.settings import ProcessSettings
 
@@ -448,7 +449,8 @@ class _Slicing:
         """Thinner layers where the replay's support rule holds the surface at a height no
         thinner than :data:`~slicer.advice.THINNEST`."""
         width = self.settings.line_width
-        return Thinning(lambda angles: held_heights(angles, width), THINNEST)
+        return Thinning(lambda angles: held_heights(angles, width), THINNEST,
+                        thickness_step(width))
 
     def _unseen(self, dec: Decomposition) -> None:
         """Remember ``dec``; :class:`repair.Refused` when one with the same sub-parts was

@@ -300,6 +300,8 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     results: list[Decomposition] = []
     first_error: DecompositionError | None = None
     plan = list(attempt_plan(mesh, settings))
+    finer = plan[-1] if len(plan) > 2 and plan[-1][1] > plan[1][1] else None
+    finer_ids: set[int] = set()
     for seed, k, three_way in [(s, k, False) for s, k in plan] + [(s, k, True) for s, k in plan]:
         how = " three-way" if three_way else ""
         try:
@@ -313,6 +315,8 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
         tried.append(f"seed {seed} k={dec.k}{how}: {len(dec.subparts)} sub-parts, overhang "
                      f"{dec.overhang_area:.1f} mm²")
         results.append(dec)
+        if (seed, k) == finer:
+            finer_ids.add(id(dec))
         if dec.overhang_area <= retry_above:
             break
     if not results:
@@ -321,17 +325,34 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
         raise DecompositionError(str(first_error) + (
             f" (and {more} further seed{'s' if more != 1 else ''} refused too)" if more else ""))
     ranked = sorted(results, key=lambda d: (round(d.overhang_area, 1), len(d.subparts)))
-    best = ranked[0]
+    best, others = _kept(ranked, finer_ids, area)
     for dec in ranked:
         dec.placement = np.asarray(placement, dtype=float)
         dec.attempts = tried
     best.timings = clock.laps
-    best.runners_up = [d for d in ranked[1:] if not _over_limit(d, area)][:RUNNERS_UP]
+    best.runners_up = [d for d in others if not _over_limit(d, area)][:RUNNERS_UP]
     for line in tried:
         log.debug("decompose attempt: %s", line)
     _refuse_overhang(best, area)
     log.info("decomposition: %s", best.summary())
     return best
+
+
+def _kept(ranked: list[Decomposition], finer: set[int], area: float
+          ) -> tuple[Decomposition, list[Decomposition]]:
+    """The decomposition kept of ``ranked`` (least overhang first) and the others, in the
+    order the closed loop tries them.
+
+    The finer last retry (ids in ``finer``) is kept only when every other result overhangs
+    past the refusal limit; else it comes first among the others. Its patches are smaller
+    than a tube is wide, so its least overhang *area* is no sign of the better plan: on
+    ``hard/tee_low`` at 0.2 mm it ranked first and planned a layer over air that the
+    coarser decomposition does not."""
+    usual = [d for d in ranked if id(d) not in finer]
+    best = usual[0] if usual and not _over_limit(usual[0], area) else ranked[0]
+    others = [d for d in ranked if d is not best]
+    others.sort(key=lambda d: id(d) not in finer)  # stable: the finer one first
+    return best, others
 
 
 def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings

@@ -11,11 +11,16 @@ surfaces (a bore's arch, a cut's underside) would need layers too thin to print
 a margin, :data:`MARGIN`) the largest height that holds every face of the sub-part in the
 slab one nominal layer above the plane below that such a height can hold at all. Only the
 faces facing down across the layer count, each by the steepness of its own plane; the slab
-is taken along the plane below's normal (a layer turns a few degrees at most).
+is taken along the plane below's normal (a layer turns a few degrees at most). The layers
+under a thinned one ramp down to it (``Thinning.step`` thicker a layer at most: each
+layer's outline is its mid-height section, and a thin layer on a thick one would step out
+over air even where the wall below is at 45°), so a face above the slab caps a layer too,
+at its own height plus the ramp's rise to it.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -35,11 +40,13 @@ HeldHeights = Callable[[np.ndarray], np.ndarray]
 
 @dataclass(frozen=True)
 class Thinning:
-    """How a march thins its layers: the support rule's ``held`` heights, and the thinnest
-    layer worth printing (mm)."""
+    """How a march thins its layers: the support rule's ``held`` heights, the thinnest
+    layer worth printing and how much thicker a layer may be than the one on it (``step``,
+    :func:`slicer.replay.thickness_step`), mm."""
 
     held: HeldHeights
     thinnest: float
+    step: float = math.inf
 
 
 @dataclass(frozen=True)
@@ -68,15 +75,22 @@ def layer_cap(surface: SteepFaces, origin: np.ndarray, normal: np.ndarray, t: fl
     layer no thinner than ``thinning.thinnest`` holds it (mm)."""
     height = (surface.vertices - np.asarray(origin, dtype=float)) @ normal
     h = height[surface.faces]
-    near = (h.min(axis=1) < t) & (h.max(axis=1) > 0.0)
+    ramp = MARGIN * thinning.step / t  # mm of thickness per mm below a thinned layer
+    reach = t + (t - thinning.thinnest) / ramp if ramp > 0 else t
+    near = (h.min(axis=1) < reach) & (h.max(axis=1) > 0.0)
     down = -(surface.normals[near] @ normal)
     steep = down > np.sin(np.radians(45.0))
     if not steep.any():
         return t
     angles = np.degrees(np.arcsin(np.clip(down[steep], -1.0, 1.0)))
     held = MARGIN * thinning.held(angles)
-    fixable = held[(held >= thinning.thinnest) & (held < t)]
-    return float(fixable.min()) if len(fixable) else t
+    # a face above this layer's slab: the layers up to it ramp down to its height
+    above = h.min(axis=1)[near][steep] - t
+    rise = np.zeros(len(above))
+    rise[above > 0.0] = ramp * above[above > 0.0]
+    fixable = (held >= thinning.thinnest) & (held < t)
+    caps = held[fixable] + rise[fixable]
+    return float(min(caps.min(), t)) if len(caps) else t
 
 
 def capper(mesh: trimesh.Trimesh, thinning: Thinning

@@ -32,7 +32,7 @@ from slicer.replay.check import (
 )
 from slicer.replay.coverage import shell_depth, shell_grid
 from slicer.replay.geometry import ModelIndex
-from slicer.replay.steepness import held_height, held_heights, overhang_deg
+from slicer.replay.steepness import held_height, held_heights, overhang_deg, thickness_step
 from slicer.replay.support import BAD_LAYER_SHARE, OVERHANG_DEG
 from slicer.replay.walls import WallLayer, WallSamples, wall_layer_text
 
@@ -51,6 +51,7 @@ __all__ = [
     "replay_check",
     "shell_depth",
     "shell_grid",
+    "thickness_step",
     "wall_layer_text",
     "worst_layer_text",
 ]

@@ -61,6 +61,17 @@ def held_height(angle_deg: float, line_width: float) -> float:
     return float(held_heights(np.array([angle_deg], dtype=float), line_width)[0])
 
 
+def thickness_step(line_width: float) -> float:
+    """How much thicker a layer may be than the one on it where a wall overhangs 45°, mm.
+
+    Each layer's outline is its section at mid-height, so on a wall at 45° the bead of a
+    layer of height ``t`` on one of ``t'`` steps out ``(t + t') / 2``, and the rule holds it
+    up to ``t' + LATERAL_SLACK · w``: ``t`` may exceed ``t'`` by ``2 · LATERAL_SLACK · w``.
+    Layers thinned for a steeper wall above ramp down to it by at most this much a layer
+    (a thin layer on a thick one would step out over air)."""
+    return 2.0 * LATERAL_SLACK * line_width
+
+
 def held_heights(angles_deg: np.ndarray, line_width: float) -> np.ndarray:
     """:func:`held_height` of each of ``angles_deg`` (k,) float: (k,) float, mm (inf up to
     45°, 0 at 90°)."""

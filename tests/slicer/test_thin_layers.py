@@ -20,7 +20,7 @@ from slicer.paths.skeleton import line_curve
 from slicer.paths.thin_layers import MARGIN, SteepFaces, capper, layer_cap
 from slicer.pipeline import slice_model
 from slicer.planes2d import slicing_solid
-from slicer.replay import held_height, held_heights
+from slicer.replay import held_height, held_heights, thickness_step
 from slicer.settings import ProcessSettings
 
 W, T = 0.45, 0.2
@@ -110,3 +110,28 @@ def test_the_closed_loop_holds_a_ball_on_its_stem_with_thinner_layers_there(tmp_
     count, thinnest = res.thinned
     assert 0 < count < res.layers / 2  # only around the ring
     assert THINNEST <= thinnest <= MARGIN * held_height(52.7, W) + 1e-9
+
+
+@pytest.mark.parametrize("flare", [52.0, 56.0])
+def test_the_layers_under_a_thinned_collar_ramp_down_to_it(flare: float) -> None:
+    """Over a 45° wall a layer may be ``thickness_step`` thicker than the one on it, no
+    more: the march thins the layers under the collar by at most that (with the margin)
+    per layer, so no thin layer lands on a thick one."""
+    stem = collar(flare, stem=5.0)
+    cone = m3.Manifold.cylinder(3.0, 3.0, 6.0, 128)  # a 45° flare under the stem
+    solid = m3.Manifold.batch_boolean([cone, stem.translate((0.0, 0.0, 3.0))],
+                                      m3.OpType.Add)
+    mesh = to_trimesh(solid)
+    rule = Thinning(RULE.held, THINNEST, thickness_step(W))
+    layers = list(march_layers(slicing_solid(mesh), line_curve(np.zeros(3), UP, 16.0),
+                               np.zeros(3), UP, MarchSettings(T, 0.5, 1.5),
+                               thin=capper(mesh, rule)))
+    nominal = np.array([la.nominal for la in layers])
+    tops = np.array([la.origin[2] for la in layers])
+    step = MARGIN * thickness_step(W)
+    assert np.all(np.diff(nominal) >= -step - 1e-9)  # never thinner by more than a step
+    collar_layers = (tops - nominal > 8.0) & (tops < 11.0)  # the flare from z 8 to 11
+    assert np.allclose(nominal[collar_layers], MARGIN * held_height(flare, W), rtol=5e-3)
+    ramp = (nominal < T) & (tops <= 8.0)
+    assert ramp.sum() >= int((T - nominal.min()) / step)  # thinned on the way up to it
+    assert np.all(nominal[tops < 8.0 - 3.0] == T)  # and only near it
