@@ -148,3 +148,25 @@ def test_a_ball_with_three_arms_from_its_stl_gets_every_arm_cut_off(tmp_path) ->
     assert max(o.area for o in dec.overhang) < 0.05 * mesh.area
     placed, _ = place_on_platform(repair_mesh(mesh))
     check_decomposition(placed, dec, HEAD, MACHINE.a_limits)
+
+
+def _fake(area: float) -> SimpleNamespace:
+    """A decomposition with one sub-part overhanging ``area`` mm²."""
+    return SimpleNamespace(overhang=[SimpleNamespace(area=area, point=(0.0, 0.0, 0.0))],
+                           overhang_area=area, subparts=[0])
+
+
+@pytest.mark.parametrize("usual_area", [50.0, 300.0])
+def test_the_finer_retry_is_kept_only_where_every_other_result_is_refused(
+        usual_area: float) -> None:
+    """Surface 4000 mm²: the refusal limit is 200 mm². The finer retry's 2 mm² ranks first
+    by area; it is kept when the usual best (300 mm²) would be refused, else the usual best
+    (50 mm²) is kept and the finer one is the loop's first alternative."""
+    finer, usual, worse = _fake(2.0), _fake(usual_area), _fake(usual_area + 10.0)
+    ranked = [finer, usual, worse]
+    best, others = decomposition._kept(ranked, {id(finer)}, 4000.0)
+    if usual_area < 200.0:
+        assert best is usual and others == [finer, worse]
+    else:
+        assert best is finer and others == [usual, worse]
+    assert decomposition._kept(ranked, set(), 4000.0)[0] is finer  # no finer retry: by area
