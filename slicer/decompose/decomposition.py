@@ -343,11 +343,12 @@ def _kept(ranked: list[Decomposition], finer: set[int], area: float
     """The decomposition kept of ``ranked`` (least overhang first) and the others, in the
     order the closed loop tries them.
 
-    The finer last retry (ids in ``finer``) is kept only when every other result overhangs
-    past the refusal limit; else it comes first among the others. Its patches are smaller
-    than a tube is wide, so its least overhang *area* is no sign of the better plan: on
-    ``hard/tee_low`` at 0.2 mm it ranked first and planned a layer over air that the
-    coarser decomposition does not."""
+    The finer retry (ids in ``finer``) is kept only when every other result overhangs past
+    the refusal limit (ball31 of the sweep); else it comes first among the others. A
+    finer partition's least overhang *area* is no sign of the better plan, and a part the
+    usual attempts decompose keeps what it had; where that plan leaves walls over air, the
+    closed loop tries the finer one next (tree10 of the sweep: its three arms' roots held
+    only that way)."""
     usual = [d for d in ranked if id(d) not in finer]
     best = usual[0] if usual and not _over_limit(usual[0], area) else ranked[0]
     others = [d for d in ranked if d is not best]
@@ -364,12 +365,12 @@ def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings
     with an automatic K the i-th retry also coarsens it to K₀/i (never below ``K_MIN``):
     k-means over-segments box-like parts into many flat patches whose groups often leave a
     horizontal overhang with the root, and coarser patches group it right (Γ bracket: K 24
-    gives a valid split for 5 of 31 seeds, K 6–8 for 12 of 12). The last retry of an
-    automatic K refines it to 2·K₀ instead (at most ``K_MAX``): K₀ counts patches about a
-    tube wide, too few for a ball with arms spread in three directions (the sweep's ball31,
-    K₀ 3: every coarser attempt kept an arm in the ball's root, 253–385 mm² over air; K 4–6
-    cut all three off in 11 of 12 seeds). A fixed ``--root`` names a region of the
-    configured seed's partition, so it gets no retries.
+    gives a valid split for 5 of 31 seeds, K 6–8 for 12 of 12). An automatic K gets one
+    more retry, finer: 2·K₀ (at most ``K_MAX``). K₀ counts patches about a tube wide, too
+    few for a ball with arms spread in three directions (the sweep's ball31, K₀ 3: every
+    coarser attempt kept an arm in the ball's root, 253–385 mm² over air; K 4–6 cut all
+    three off in 11 of 12 seeds); :func:`_kept` says when it is kept. A fixed ``--root``
+    names a region of the configured seed's partition, so it gets no retries.
     """
     yield settings.seed, settings.parts
     if settings.root is not None:
@@ -377,10 +378,9 @@ def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings
     k0 = settings.parts or auto_k(analysis_mesh(mesh))
     for i in range(1, TOL.retry_seeds + 1):
         seed = (settings.seed + i * 1_000_003) % 2**31
-        k = settings.parts or max(K_MIN, round(k0 / i))
-        if i == TOL.retry_seeds and not settings.parts and k0 < K_MAX:
-            k = min(K_MAX, 2 * k0)
-        yield seed, k
+        yield seed, settings.parts or max(K_MIN, round(k0 / i))
+    if not settings.parts and k0 < K_MAX:
+        yield (settings.seed + (TOL.retry_seeds + 1) * 1_000_003) % 2**31, min(K_MAX, 2 * k0)
 
 
 def _attempt(mesh: trimesh.Trimesh, settings: DecomposeSettings, seed: int, k: int,

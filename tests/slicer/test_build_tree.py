@@ -124,13 +124,16 @@ def test_the_loop_passes_over_a_decomposition_it_has_tried(
         _Slicing._unseen(slicing, other)  # type: ignore[arg-type]
 
 
-def test_the_last_retry_of_an_automatic_k_is_finer_the_others_coarser() -> None:
+def test_the_retries_of_an_automatic_k_coarsen_it_and_one_more_refines_it() -> None:
     mesh, _ = place_on_platform(repair_mesh(hard_variant(31).mesh()))
     plan = list(decomposition.attempt_plan(mesh, DecomposeSettings()))
     k0 = plan[1][1]  # the first retry keeps K0
-    assert plan[0] == (0, 0) and len(plan) == 1 + decomposition.TOL.retry_seeds
-    assert [k for _, k in plan[1:-1]] == sorted((k for _, k in plan[1:-1]), reverse=True)
+    assert plan[0] == (0, 0) and len(plan) == 2 + decomposition.TOL.retry_seeds
+    coarser = [k for _, k in plan[1:-1]]
+    assert coarser == [max(decomposition.K_MIN, round(k0 / i))
+                       for i in range(1, len(coarser) + 1)]
     assert plan[-1][1] == min(2 * k0, decomposition.K_MAX) > k0
+    assert len({seed for seed, _ in plan}) == len(plan)  # every attempt its own seed
     fixed = list(decomposition.attempt_plan(mesh, DecomposeSettings(parts=5)))
     assert {k for _, k in fixed} == {5}  # a K asked for is kept in every retry
 
