@@ -69,17 +69,18 @@ class SteepFaces:
 
 def layer_cap(surface: SteepFaces, origin: np.ndarray, normal: np.ndarray, t: float,
               thinning: Thinning) -> float:
-    """The next layer's thickness above the plane (``origin``, unit ``normal``) below it:
-    ``t``, or :data:`MARGIN` of the height that holds the steepest face of ``surface``
-    within ``t`` above that plane, where that face overhangs past what ``t`` holds and a
-    layer no thinner than ``thinning.thinnest`` holds it (mm)."""
+    """The next layer's thickness above the plane (``origin``, unit ``normal``) below it,
+    mm: ``t``, or less where a face of ``surface`` overhangs past what ``t`` holds and a
+    layer no thinner than ``thinning.thinnest`` holds it: :data:`MARGIN` of the height that
+    holds the steepest such face within ``t`` above that plane, or of one farther up plus
+    the ramp's rise to it (``thinning.step`` a nominal layer height)."""
     height = (surface.vertices - np.asarray(origin, dtype=float)) @ normal
     h = height[surface.faces]
     ramp = MARGIN * thinning.step / t  # mm of thickness per mm below a thinned layer
     reach = t + (t - thinning.thinnest) / ramp if ramp > 0 else t
     near = (h.min(axis=1) < reach) & (h.max(axis=1) > 0.0)
     down = -(surface.normals[near] @ normal)
-    steep = down > np.sin(np.radians(45.0))
+    steep = down > np.sin(np.radians(45.0))  # held at any height up to 45° (``held``: inf)
     if not steep.any():
         return t
     angles = np.degrees(np.arcsin(np.clip(down[steep], -1.0, 1.0)))
