@@ -301,8 +301,13 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     first_error: DecompositionError | None = None
     plan = list(attempt_plan(mesh, settings))
     finer = plan[-1] if len(plan) > 2 and plan[-1][1] > plan[1][1] else None
+    usual = [p for p in plan if p != finer]
+    # the finer retry last of all: only where no usual attempt, nor its three-way cut, is
+    # within the retry threshold
+    order = [(s, k, False) for s, k in usual] + [(s, k, True) for s, k in usual]
+    order += [] if finer is None else [(*finer, False), (*finer, True)]
     finer_ids: set[int] = set()
-    for seed, k, three_way in [(s, k, False) for s, k in plan] + [(s, k, True) for s, k in plan]:
+    for seed, k, three_way in order:
         how = " three-way" if three_way else ""
         try:
             dec = _attempt(mesh, settings, seed, k, machine, head, clock, three_way)
@@ -366,7 +371,8 @@ def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings
     k-means over-segments box-like parts into many flat patches whose groups often leave a
     horizontal overhang with the root, and coarser patches group it right (Γ bracket: K 24
     gives a valid split for 5 of 31 seeds, K 6–8 for 12 of 12). An automatic K gets one
-    more retry, finer: 2·K₀ (at most ``K_MAX``). K₀ counts patches about a tube wide, too
+    more retry, finer: 2·K₀ (at most ``K_MAX``), which :func:`decompose` makes after all the
+    others and their three-way cuts. K₀ counts patches about a tube wide, too
     few for a ball with arms spread in three directions (the sweep's ball31, K₀ 3: every
     coarser attempt kept an arm in the ball's root, 253–385 mm² over air; K 4–6 cut all
     three off in 11 of 12 seeds); :func:`_kept` says when it is kept. A fixed ``--root``
