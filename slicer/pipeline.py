@@ -408,24 +408,23 @@ class _Slicing:
         if index is not None:  # and its coverage grid while the G-code is written
             index = self.early.submit(_with_grid, index, self.settings)
 
-        def again(hints: LeanHints) -> Try[SliceResult]:
+        def replanned(hints: LeanHints | None, thin: Thinning | None = None
+                      ) -> Try[SliceResult]:
+            """The decomposition planned again, leaning with ``hints`` (None: upright)."""
             assert plan.decomposition is not None
             t2 = time.perf_counter()
             self.report("repair")
-            replanned = plan_print(plan.decomposition, self.settings, self.geometry,
-                                   self.head, lean=LEAN, hints=hints)
-            return replace(self._finish(mesh, replanned, index, {}, t2, seed), parts=parts,
+            made = plan_print(plan.decomposition, self.settings, self.geometry, self.head,
+                              lean=None if hints is None else LEAN, hints=hints or NO_HINTS,
+                              thin=thin)
+            return replace(self._finish(mesh, made, index, {}, t2, seed), parts=parts,
                            hints=hints)
 
+        def again(hints: LeanHints) -> Try[SliceResult]:
+            return replanned(hints)
+
         def thin(base: Try[SliceResult]) -> Try[SliceResult]:
-            assert plan.decomposition is not None
-            t2 = time.perf_counter()
-            self.report("repair")
-            replanned = plan_print(plan.decomposition, self.settings, self.geometry,
-                                   self.head, lean=None if base.hints is None else LEAN,
-                                   hints=base.hints or NO_HINTS, thin=self.thinning())
-            return replace(self._finish(mesh, replanned, index, {}, t2, seed), parts=parts,
-                           hints=base.hints)
+            return replanned(base.hints, self.thinning())
 
         retry = again if plan.decomposition is not None and rounds != 0 else None
         leaned = 0

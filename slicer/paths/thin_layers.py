@@ -76,9 +76,10 @@ def layer_cap(surface: SteepFaces, origin: np.ndarray, normal: np.ndarray, t: fl
     the ramp's rise to it (``thinning.step`` a nominal layer height)."""
     height = (surface.vertices - np.asarray(origin, dtype=float)) @ normal
     h = height[surface.faces]
+    lowest = h.min(axis=1)
     ramp = MARGIN * thinning.step / t  # mm of thickness per mm below a thinned layer
     reach = t + (t - thinning.thinnest) / ramp if ramp > 0 else t
-    near = (h.min(axis=1) < reach) & (h.max(axis=1) > 0.0)
+    near = (lowest < reach) & (h.max(axis=1) > 0.0)
     down = -(surface.normals[near] @ normal)
     steep = down > np.sin(np.radians(45.0))  # held at any height up to 45° (``held``: inf)
     if not steep.any():
@@ -86,7 +87,7 @@ def layer_cap(surface: SteepFaces, origin: np.ndarray, normal: np.ndarray, t: fl
     angles = np.degrees(np.arcsin(np.clip(down[steep], -1.0, 1.0)))
     held = MARGIN * thinning.held(angles)
     # a face above this layer's slab: the layers up to it ramp down to its height
-    above = h.min(axis=1)[near][steep] - t
+    above = lowest[near][steep] - t
     rise = np.zeros(len(above))
     rise[above > 0.0] = ramp * above[above > 0.0]
     fixable = (held >= thinning.thinnest) & (held < t)

@@ -77,6 +77,5 @@ def held_heights(angles_deg: np.ndarray, line_width: float) -> np.ndarray:
     45°, 0 at 90°)."""
     a = np.radians(np.clip(np.asarray(angles_deg, dtype=float), 0.0, 90.0))
     excess = np.tan(a) - math.tan(math.radians(OVERHANG_DEG))
-    with np.errstate(divide="ignore"):
-        return np.where(excess > 0.0, LATERAL_SLACK * line_width / np.maximum(excess, 1e-300),
-                        math.inf)
+    return np.where(excess > 0.0, LATERAL_SLACK * line_width / np.maximum(excess, 1e-300),
+                    math.inf)
