@@ -11,6 +11,7 @@ from slicer.mesh.samples import to_trimesh
 from slicer.paths.layers import (
     MarchSettings,
     SlicingError,
+    fit_end,
     local_thickness,
     march_layers,
     turn_toward,
@@ -66,6 +67,35 @@ def test_straight_part_gives_parallel_layers_of_exact_thickness() -> None:
     z = np.array([la.origin[2] for la in layers])
     assert np.allclose(z, 0.2 * np.arange(1, 51))
     assert all(la.thickness == pytest.approx((0.2, 0.2)) for la in layers)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_last_layers_end_on_the_top_of_any_height(seed: int) -> None:
+    """A height that is no multiple of t: the march's top lies on the part's top (not up to
+    t/2 above or below it); the last two layers share what whole layers leave (from two
+    layers up: none thinner than t/2), none thicker than t, all others t."""
+    rng = np.random.default_rng(seed)
+    t, height = float(rng.choice([0.2, 0.3])), float(rng.uniform(3.0, 12.0))
+    solid = m3.Manifold.cylinder(height, 4.0, 4.0, 64)
+    ms = MarchSettings(t, 0.5, 1.5)
+    layers = list(march_layers(solid, line_curve([0, 0, 0], [0, 0, 1], height + 1.0),
+                               [0, 0, 0], [0, 0, 1], ms))
+    tops = np.array([la.origin[2] for la in layers])
+    assert tops[-1] == pytest.approx(height, abs=1e-5)  # the cylinder's float32 top
+    gaps = np.diff(np.concatenate([[0.0], tops]))
+    assert np.allclose(gaps[:-2], t)
+    assert np.all(gaps >= 0.5 * t - 1e-9) and np.all(gaps <= t + 1e-9)
+    assert all(la.nominal == t for la in layers)  # fitted, not thinned
+    assert all(la.thickness == pytest.approx((g, g)) for la, g in zip(layers, gaps, strict=True))
+
+
+def test_fit_end_shares_the_last_two_layers_heights() -> None:
+    below = (np.zeros(3), np.array([0.0, 0.0, 1.0]))
+    top = np.array([[0.0, 0.0, -1.0], [3.0, 1.0, 0.0]])
+    for h, want in ((0.9, 0.3), (0.6, 0.3), (0.5, 0.25), (0.3, 0.3), (0.1, 0.1), (0.05, 0.3)):
+        pts = np.vstack([top, [[1.0, 2.0, h]]])
+        assert fit_end(pts, below, 0.3) == pytest.approx(want)
+    assert fit_end(np.zeros((0, 3)), below, 0.3) == 0.3
 
 
 def test_bend_keeps_thickness_bounded_and_normals_continuous() -> None:
