@@ -40,8 +40,9 @@ class Tolerances:
     straight_thick: float = 0.15  # ... or below this fraction of the part's smallest extent
     snap_deg: float = 5.0  # a straight axis this close to the base normal is the base normal
     turn_margin: float = 0.9  # fraction of the thickness slack a turn may use
-    end_share: float = 0.25  # a sub-part's far end at least this share of a layer above the
-    #                          last layer's plane gets a layer of its own (slicer.paths.layers)
+    end_share: float = 0.5  # a sub-part's flat far end at least this share of a layer above
+    #                         the last layer's plane gets a layer of its own, no thinner
+    #                         (slicer.paths.layers.fit_end)
     # decomposition (slicer.decompose.overhang, slicer.decompose.decomposition)
     overhang_deg: float = 45.0  # a face overhangs when its normal points further below
     #                             the plane square to the build direction (FDM's 45° rule)

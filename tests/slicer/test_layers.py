@@ -89,10 +89,27 @@ def test_the_last_layers_end_on_the_top_of_any_height(seed: int) -> None:
     assert all(la.thickness == pytest.approx((g, g)) for la, g in zip(layers, gaps, strict=True))
 
 
+@pytest.mark.parametrize("end", ["tilted cut", "dome"])
+def test_an_end_that_is_not_flat_keeps_whole_layers(end: str) -> None:
+    """Under a tilted cut (a crescent that shrinks layer by layer) or a dome a thinner layer
+    on a full one would step out over the wall: every layer stays t thick."""
+    rod = m3.Manifold.cylinder(12.0, 4.0, 4.0, 64)
+    if end == "tilted cut":
+        solid = rod.trim_by_plane((np.sin(np.radians(20.0)), 0.0, -np.cos(np.radians(20.0))),
+                                  -9.0)
+    else:
+        solid = rod + m3.Manifold.sphere(4.0, 64).translate((0.0, 0.0, 12.0))
+    layers = list(march_layers(solid, line_curve([0, 0, 0], [0, 0, 1], 20.0), [0, 0, 0],
+                               [0, 0, 1], MS))
+    assert all(la.thickness == pytest.approx((0.2, 0.2)) for la in layers)
+    top = solid.bounding_box()[5]
+    assert top - 0.5 * 0.2 - 1e-6 <= layers[-1].origin[2] <= top + 0.5 * 0.2 + 1e-6
+
+
 def test_fit_end_shares_the_last_two_layers_heights() -> None:
     below = (np.zeros(3), np.array([0.0, 0.0, 1.0]))
     top = np.array([[0.0, 0.0, -1.0], [3.0, 1.0, 0.0]])
-    for h, want in ((0.9, 0.3), (0.6, 0.3), (0.5, 0.25), (0.3, 0.3), (0.1, 0.1), (0.05, 0.3)):
+    for h, want in ((0.9, 0.3), (0.6, 0.3), (0.5, 0.25), (0.3, 0.3), (0.15, 0.15), (0.1, 0.3)):
         pts = np.vstack([top, [[1.0, 2.0, h]]])
         assert fit_end(pts, below, 0.3) == pytest.approx(want)
     assert fit_end(np.zeros((0, 3)), below, 0.3) == 0.3
