@@ -39,8 +39,11 @@ R = TypeVar("R")
 
 REPAIR_ROUNDS = 3
 """Leaning tries of one decomposition at most (the first decomposition's)."""
-ALTERNATIVES = 2
-"""Other decomposition seeds tried when the first decomposition holds no file support-free."""
+ALTERNATIVES = 4
+"""Other decompositions tried when the first holds no file support-free: the runners-up, then
+the next seeds. Two were tried until 2026-12-07; the third and fourth (next seeds) hold
+five more slices of the sweep's 64 (tree10 and elbow13 at both heights, tree26 at 0.3 mm)
+and cost a part that stays unsupported about twice its time (``bench/hard_sweep.py``)."""
 ALTERNATIVE_ROUNDS = 1
 """Leaning tries of each other decomposition at most."""
 

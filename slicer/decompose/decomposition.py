@@ -89,8 +89,9 @@ class RootRegionError(DecompositionError):
 
 
 RUNNERS_UP = 2
-"""Valid attempts kept beside the best (:attr:`Decomposition.runners_up`): as many as the
-closed loop tries (``slicer.repair.ALTERNATIVES``)."""
+"""Valid attempts kept beside the best (:attr:`Decomposition.runners_up`): the first
+alternatives the closed loop tries (``slicer.repair.ALTERNATIVES``); it decomposes with the
+next seeds after them."""
 
 @dataclass(frozen=True)
 class DecomposeSettings:
