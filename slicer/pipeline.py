@@ -37,7 +37,15 @@ from slicer.advice import (
 )
 from slicer.gcode import Draft, E, MachineSetup, draft, parse_words
 from slicer.hugepages import small_pages
-from slicer.paths import LEAN, NO_HINTS, LeanHints, SlicingError, Thinning, plan_print
+from slicer.paths import (
+    LEAN,
+    NO_HINTS,
+    LeanHints,
+    SlicingError,
+    Thinning,
+    any_height,
+    plan_print,
+)
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.repair import (
@@ -423,8 +431,11 @@ class _Slicing:
         def again(hints: LeanHints) -> Try[SliceResult]:
             return replanned(hints)
 
-        def thin(base: Try[SliceResult]) -> Try[SliceResult]:
-            return replanned(base.hints, self.thinning())
+        def thin(base: Try[SliceResult], spots: bool) -> Try[SliceResult]:
+            rule = base.thinning or self.thinning(slopes=not spots)
+            if spots:
+                rule = replace(rule, spots=base.spots())
+            return replace(replanned(base.hints, rule), thinning=rule)
 
         retry = again if plan.decomposition is not None and rounds != 0 else None
         leaned = 0
@@ -444,12 +455,16 @@ class _Slicing:
             best.result.timings.update({k: timings[k] for k in ("repair", "repair_rounds")})
         return best
 
-    def thinning(self) -> Thinning:
+    def thinning(self, slopes: bool = True) -> Thinning:
         """Thinner layers where the replay's support rule holds the surface at a height no
-        thinner than :data:`~slicer.advice.THINNEST`."""
+        thinner than :data:`~slicer.advice.THINNEST` (``slopes``; else nowhere yet: spots
+        are added to it)."""
         width = self.settings.line_width
-        return Thinning(lambda angles: held_heights(angles, width), THINNEST,
-                        thickness_step(width))
+
+        def held(angles: np.ndarray) -> np.ndarray:
+            return held_heights(angles, width)
+
+        return Thinning(held if slopes else any_height, THINNEST, thickness_step(width))
 
     def _unseen(self, dec: Decomposition) -> None:
         """Remember ``dec``; :class:`repair.Refused` when one with the same sub-parts was

@@ -30,7 +30,7 @@ from typing import Generic, TypeVar
 
 import numpy as np
 
-from slicer.paths import NO_HINTS, LeanHints
+from slicer.paths import NO_HINTS, LeanHints, Spots, Thinning
 from slicer.plan import PrintPlan
 from slicer.replay import ReplayReport
 
@@ -68,6 +68,8 @@ class Try(Generic[R]):
     thinner: tuple[float, float] | None = None
     hints: LeanHints | None = None
     """The hints of a leaning try (None: upright), to plan it again."""
+    thinning: Thinning | None = None
+    """How its layers were thinned (None: every layer nominal), to thin them further."""
 
     @property
     def over_air(self) -> int:
@@ -92,6 +94,13 @@ class Try(Generic[R]):
         if self.report is None:
             return np.zeros((0, 3))
         return np.asarray(self.report.unsupported_walls.p, dtype=float).reshape(-1, 3)
+
+    def spots(self) -> Spots:
+        """The try's unsupported wall samples with their sub-parts, to thin layers at."""
+        if self.report is None:
+            return Spots(np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+        walls = self.report.unsupported_walls
+        return Spots(self.misses(), np.asarray(walls.subpart, dtype=np.int64))
 
 
 
@@ -143,21 +152,37 @@ def repaired(first: Try[R], again: Callable[[LeanHints], Try[R]] | None,
     return best, done
 
 
-def thinned(best: Try[R], again: Callable[[Try[R]], Try[R]] | None,
+def thinned(best: Try[R], again: Callable[[Try[R], bool], Try[R]] | None,
             failures: tuple[type[Exception], ...]) -> Try[R]:
-    """``best``, or ``again(best)``, the same plan made with thinner layers where the surface
-    overhangs a little past what the layer height holds
-    (:mod:`slicer.paths.thin_layers`), when that ranks better (:meth:`Try.rank`). Tried
-    only when ``best`` is not support-free and its unsupported walls lie on a surface
-    thinner layers hold (``best.thinner``: a ring at 50–60°, not a bore's arch)."""
-    if again is None or best.support_free or best.thinner is None:
+    """``best``, or the same plan made with thinner layers when that ranks better
+    (:meth:`Try.rank`), while it is not support-free, in two steps
+    (:mod:`slicer.paths.thin_layers`):
+
+    1. ``again(best, False)``: thinner where the surface overhangs a little past what the
+       layer height holds, tried when ``best``'s unsupported walls lie on such a surface
+       (``best.thinner``: a ring at 50–60°, not a bore's arch);
+    2. ``again(kept, True)``: thinner, besides, through the points where the walls of the
+       try kept so far are over air (:meth:`Try.spots`), whatever the slope there.
+    """
+    if again is None:
         return best
+    if not best.support_free and best.thinner is not None:
+        best = _better(best, again, False, failures)
+    if not best.support_free and best.misses().size:
+        best = _better(best, again, True, failures)
+    return best
+
+
+def _better(best: Try[R], again: Callable[[Try[R], bool], Try[R]], spots: bool,
+            failures: tuple[type[Exception], ...]) -> Try[R]:
+    """``again(best, spots)`` when it ranks better than ``best``, else ``best``."""
+    what = "at the unsupported walls" if spots else "on the steep surface"
     try:
-        other = again(best)
+        other = again(best, spots)
     except failures as exc:
-        log.info("thinner layers failed: %s", exc)
+        log.info("thinner layers %s failed: %s", what, exc)
         return best
-    log.info("thinner layers: %d wall layers over air (%d before)", other.over_air,
+    log.info("thinner layers %s: %d wall layers over air (%d before)", what, other.over_air,
              best.over_air)
     return other if other.rank() < best.rank() else best
 

@@ -26,8 +26,8 @@ from __future__ import annotations
 from slicer.paths.layers import SlicingError
 from slicer.paths.lean_costs import LEAN, LeanSettings
 from slicer.paths.planner import plan_planar, plan_print
-from slicer.paths.thin_layers import Thinning
+from slicer.paths.thin_layers import Spots, Thinning, any_height
 from slicer.paths.upright import NO_HINTS, LeanHints
 
-__all__ = ["LEAN", "NO_HINTS", "LeanHints", "LeanSettings", "SlicingError", "Thinning",
-           "plan_planar", "plan_print"]
+__all__ = ["LEAN", "NO_HINTS", "LeanHints", "LeanSettings", "SlicingError", "Spots",
+           "Thinning", "any_height", "plan_planar", "plan_print"]

@@ -272,7 +272,7 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
         return machine.accept(origin, frame, region)
 
     layers = []
-    cap = None if thin is None else capper(mesh, thin)
+    cap = None if thin is None else capper(mesh, thin, index)
     for layer in march_layers(solid, curve, centre, base[1], _march(settings), accept, index,
                               direction, cap):
         layers.append(layer)

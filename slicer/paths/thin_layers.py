@@ -16,6 +16,12 @@ under a thinned one ramp down to it (``Thinning.step`` thicker a layer at most: 
 layer's outline is its mid-height section, and a thin layer on a thick one would step out
 over air even where the wall below is at 45°), so a face above the slab caps a layer too,
 at its own height plus the ramp's rise to it.
+
+:class:`Spots` thin layers by place instead of by slope: where a try's replay found walls
+over air on a surface the rule holds at the nominal height (a wall at 45° whose layers turn
+under it, a branch's first layers on its parent's flank), the layers through those points
+are made again at :data:`SPOT_SHARE` of the height, the layers under them ramping down as
+above. Beyond the paper, which prints every layer at one height.
 """
 
 from __future__ import annotations
@@ -33,20 +39,52 @@ bound is exact for a straight wall, and a curved one (a ball's underside between
 layers' sections), its faceting and the beads' corners take the rest (ball27 at 0.3 mm:
 a layer at 0.237 mm where the rule held 0.239 left 8 % of its wall points over air)."""
 
+SPOT_SHARE = 0.5
+"""A layer through a spot (:class:`Spots`) takes this share of the nominal height (no less
+than ``Thinning.thinnest``). Measured on the sweep's slices that kept one or two wall layers
+over air at 0.2 and 0.3 mm: four of six held every wall sliced at 0.15 mm throughout
+(``bench/hard_sweep.py``); half the height halves what a turning layer's edge steps out."""
+
 HeldHeights = Callable[[np.ndarray], np.ndarray]
 """Overhang angles (k,) degrees → the layer heights (k,) mm the support rule holds them at
 (inf where it holds them at any height)."""
 
 
 @dataclass(frozen=True)
+class Spots:
+    """Where a try's walls were over air: points (k, 3), placed frame, and the sub-part
+    (k,) int each was printed in (the plan's index)."""
+
+    points: np.ndarray
+    subpart: np.ndarray
+
+    def of(self, index: int | None) -> np.ndarray:
+        """The points (j, 3) of sub-part ``index`` (none for None)."""
+        if index is None:
+            return self.points[:0]
+        return self.points[self.subpart == index]
+
+
+NO_SPOTS = Spots(np.zeros((0, 3)), np.zeros(0, dtype=np.int64))
+
+
+def any_height(angles: np.ndarray) -> np.ndarray:
+    """A :data:`HeldHeights` that holds every surface at any height: thinning by
+    :class:`Spots` only."""
+    return np.full(len(np.atleast_1d(angles)), math.inf)
+
+
+@dataclass(frozen=True)
 class Thinning:
     """How a march thins its layers: the support rule's ``held`` heights, the thinnest
     layer worth printing and how much thicker a layer may be than the one on it (``step``,
-    :func:`slicer.replay.thickness_step`), mm."""
+    :func:`slicer.replay.thickness_step`), mm; and the ``spots`` whose layers are thinned
+    whatever the slope there."""
 
     held: HeldHeights
     thinnest: float
     step: float = math.inf
+    spots: Spots = NO_SPOTS
 
 
 @dataclass(frozen=True)
@@ -68,16 +106,47 @@ class SteepFaces:
 
 
 def layer_cap(surface: SteepFaces, origin: np.ndarray, normal: np.ndarray, t: float,
-              thinning: Thinning) -> float:
+              thinning: Thinning, spots: np.ndarray | None = None) -> float:
     """The next layer's thickness above the plane (``origin``, unit ``normal``) below it,
     mm: ``t``, or less where a face of ``surface`` overhangs past what ``t`` holds and a
     layer no thinner than ``thinning.thinnest`` holds it: :data:`MARGIN` of the height that
     holds the steepest such face within ``t`` above that plane, or of one farther up plus
-    the ramp's rise to it (``thinning.step`` a nominal layer height)."""
+    the ramp's rise to it (``thinning.step`` a nominal layer height); no more than
+    :func:`spot_cap` of ``spots`` (j, 3)."""
+    by_place = t if spots is None else spot_cap(spots, origin, normal, t, thinning)
+    return min(_slope_cap(surface, origin, normal, t, thinning), by_place)
+
+
+def _ramp(thinning: Thinning, t: float) -> float:
+    """mm of thickness a layer may gain per mm below a thinned one."""
+    return MARGIN * thinning.step / t
+
+
+def spot_cap(spots: np.ndarray, origin: np.ndarray, normal: np.ndarray, t: float,
+             thinning: Thinning) -> float:
+    """The next layer's thickness above the plane (``origin``, unit ``normal``) for the
+    ``spots`` (j, 3): :data:`SPOT_SHARE` of ``t`` (no less than ``thinning.thinnest``) when
+    one lies in the slab ``t`` above the plane, the ramp's rise more for one above it, else
+    ``t``."""
+    target = max(SPOT_SHARE * t, thinning.thinnest)
+    if not len(spots) or target >= t:
+        return t
+    h = (np.asarray(spots, dtype=float) - np.asarray(origin, dtype=float)) @ normal
+    ramp = _ramp(thinning, t)
+    reach = t + (t - target) / ramp if ramp > 0 else t
+    ahead = h[(h > 0.0) & (h < reach)]
+    if not len(ahead):
+        return t
+    return float(min(target + ramp * np.maximum(ahead - t, 0.0).min(), t))
+
+
+def _slope_cap(surface: SteepFaces, origin: np.ndarray, normal: np.ndarray, t: float,
+               thinning: Thinning) -> float:
+    """:func:`layer_cap` by the faces' slopes alone."""
     height = (surface.vertices - np.asarray(origin, dtype=float)) @ normal
     h = height[surface.faces]
     lowest = h.min(axis=1)
-    ramp = MARGIN * thinning.step / t  # mm of thickness per mm below a thinned layer
+    ramp = _ramp(thinning, t)
     reach = t + (t - thinning.thinnest) / ramp if ramp > 0 else t
     near = (lowest < reach) & (h.max(axis=1) > 0.0)
     down = -(surface.normals[near] @ normal)
@@ -95,13 +164,14 @@ def layer_cap(surface: SteepFaces, origin: np.ndarray, normal: np.ndarray, t: fl
     return float(min(caps.min(), t)) if len(caps) else t
 
 
-def capper(mesh: trimesh.Trimesh, thinning: Thinning
+def capper(mesh: trimesh.Trimesh, thinning: Thinning, index: int | None = None
            ) -> Callable[[np.ndarray, np.ndarray, float], float]:
-    """:func:`layer_cap` over the surface of ``mesh``, as a march takes it
-    (``thin(origin, normal, t)``)."""
+    """:func:`layer_cap` over the surface of ``mesh``, sub-part ``index`` (its spots), as a
+    march takes it (``thin(origin, normal, t)``)."""
     surface = SteepFaces.of(mesh)
+    spots = thinning.spots.of(index)
 
     def thin(origin: np.ndarray, normal: np.ndarray, t: float) -> float:
-        return layer_cap(surface, origin, normal, t, thinning)
+        return layer_cap(surface, origin, normal, t, thinning, spots)
 
     return thin

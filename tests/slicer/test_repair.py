@@ -196,23 +196,54 @@ def test_a_failing_try_on_a_surface_thinner_layers_hold_is_made_again_thinned() 
     best = replace(_try("lean", 1, 1, 0.999), thinner=RING, hints=NO_HINTS)
     again = Script([_try("thin", 0, 0, 1.0)])
     assert thinned(best, again, FAILURES).result == "thin"
-    assert again.asked == [(best,)]  # the try itself: its lean and hints are made again
+    # the try itself (its lean and hints are made again), thinned by slope; support-free,
+    # so not at its spots as well
+    assert again.asked == [(best, False)]
 
 
 @pytest.mark.parametrize("outcome", ["worse", "fails"])
 def test_a_thinned_try_no_better_or_failing_leaves_the_best(outcome: str) -> None:
     best = replace(_try("lean", 1, 1, 0.999), thinner=RING)
     other = _try("thin", 2, 2, 0.99) if outcome == "worse" else SlicingError("no plane")
-    assert thinned(best, Script([other]), FAILURES) is best
+    again = Script([other, _try("spots", 1, 2, 0.998)])
+    assert thinned(best, again, FAILURES) is best
+    assert again.asked == [(best, False), (best, True)]
 
 
-@pytest.mark.parametrize("case", ["support-free", "steep", "no loop"])
+def test_walls_over_air_on_a_surface_the_height_holds_are_thinned_where_they_are() -> None:
+    """No ``thinner`` (the slope there is within what the layer height holds, or far past
+    what any printable layer holds): the try is made again thinner at its spots only."""
+    best = _try("lean", 1, 1, 0.999)
+    again = Script([_try("spots", 0, 0, 1.0)])
+    assert thinned(best, again, FAILURES).result == "spots"
+    assert again.asked == [(best, True)]
+
+
+def test_the_spots_come_from_the_slope_thinned_try_when_it_is_kept() -> None:
+    best = replace(_try("lean", 2, 2, 0.99), thinner=RING)
+    by_slope = _try("thin", 1, 1, 0.999)
+    again = Script([by_slope, _try("spots", 0, 0, 1.0)])
+    assert thinned(best, again, FAILURES).result == "spots"
+    assert again.asked == [(best, False), (by_slope, True)]
+
+
+def test_a_tries_spots_carry_its_unsupported_walls_and_their_sub_parts() -> None:
+    rep = _report(1, 1, 0.99, misses=5)
+    rep.unsupported_walls = replace(rep.unsupported_walls,
+                                    subpart=np.array([0, 0, 2, 2, 3], np.int32))
+    spots = Try("x", rep, PrintPlan.__new__(PrintPlan)).spots()
+    assert np.array_equal(spots.points, rep.unsupported_walls.p)
+    assert np.array_equal(spots.of(2), rep.unsupported_walls.p[2:4])
+    assert len(spots.of(1)) == 0
+
+
+@pytest.mark.parametrize("case", ["support-free", "no misses", "no loop"])
 def test_no_thinned_try_where_it_cannot_help(case: str) -> None:
-    """A support-free try, walls on a surface too steep for any printable layer (a bore's
-    arch: no ``thinner``), or a slice without the loop."""
+    """A support-free try, a try whose report names no unsupported wall sample, or a slice
+    without the loop."""
     best = _try("lean", 0, 0, 1.0) if case == "support-free" else _try("lean", 1, 1, 0.99)
-    if case != "steep":
-        best = replace(best, thinner=RING)
+    if case == "no misses":
+        best = replace(best, report=_report(1, 1, 0.99, misses=0))
     again = Script([])
     assert thinned(best, None if case == "no loop" else again, FAILURES) is best
     assert again.asked == []

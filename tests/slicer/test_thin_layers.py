@@ -1,10 +1,12 @@
 """Thinner layers where the surface overhangs a little past what the layer height holds
 (slicer.paths.thin_layers): the cap of one layer, a march through a flared collar, and the
-closed loop holding a ball on its stem at 0.2 mm that no lean holds."""
+closed loop holding a ball on its stem at 0.2 mm that no lean holds; and thinner layers
+through the spots where a try's walls were over air, whatever the slope."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import manifold3d as m3
 import numpy as np
@@ -14,10 +16,17 @@ from kinematics.machine import MachineGeometry
 from slicer.advice import THINNEST
 from slicer.mesh import to_trimesh
 from slicer.mesh.hard_samples import hard_variant
-from slicer.paths import Thinning
+from slicer.paths import Spots, Thinning, any_height
 from slicer.paths.layers import MarchSettings, march_layers
 from slicer.paths.skeleton import line_curve
-from slicer.paths.thin_layers import MARGIN, SteepFaces, capper, layer_cap
+from slicer.paths.thin_layers import (
+    MARGIN,
+    SPOT_SHARE,
+    SteepFaces,
+    capper,
+    layer_cap,
+    spot_cap,
+)
 from slicer.pipeline import slice_model
 from slicer.planes2d import slicing_solid
 from slicer.replay import held_height, held_heights, thickness_step
@@ -139,3 +148,63 @@ def test_the_layers_under_a_thinned_collar_ramp_down_to_it(flare: float) -> None
     ramp = (nominal < T) & (tops <= 8.0)
     assert ramp.sum() >= int((T - nominal.min()) / step)  # thinned on the way up to it
     assert np.all(nominal[tops < 8.0 - 3.0] == T)  # and only near it
+
+
+SPOTS_ONLY = Thinning(any_height, THINNEST, thickness_step(W))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_spot_in_the_next_layers_slab_halves_it_and_one_above_ramps_to_it(seed: int
+                                                                           ) -> None:
+    rng = np.random.default_rng(seed)
+    t = float(rng.uniform(0.15, 0.3))
+    normal = rng.normal(size=3)
+    normal /= np.linalg.norm(normal)
+    origin = rng.uniform(-5.0, 5.0, 3)
+    side = np.cross(normal, rng.normal(size=3))  # spots anywhere across the plane
+    target = SPOT_SHARE * t
+    ramp = MARGIN * SPOTS_ONLY.step / t
+
+    def at(h: float) -> np.ndarray:
+        return (origin + h * normal + 7.0 * side)[None, :]
+
+    assert spot_cap(at(0.6 * t), origin, normal, t, SPOTS_ONLY) == pytest.approx(target)
+    h = t + 0.5 * (t - target) / ramp  # above the slab, half-way up the ramp's reach
+    assert spot_cap(at(h), origin, normal, t, SPOTS_ONLY) == pytest.approx(
+        target + ramp * (h - t))
+    for far in (-0.05, t + 1.01 * (t - target) / ramp):  # below the plane, past the reach
+        assert spot_cap(at(far), origin, normal, t, SPOTS_ONLY) == t
+    both = np.vstack([at(0.6 * t), at(h)])  # the nearest one binds
+    assert spot_cap(both, origin, normal, t, SPOTS_ONLY) == pytest.approx(target)
+
+
+def test_spots_thin_only_their_own_sub_parts_layers() -> None:
+    """A capper for sub-part 1 takes the spots found in sub-part 1, not those of 0; a wall
+    at 45° thins no layer by its slope when only spots are asked for."""
+    mesh = to_trimesh(collar(45.0))
+    z = 6.0
+    spots = Spots(np.array([[0.0, 6.5, z + 0.1], [0.0, -6.5, z + 0.1]]), np.array([0, 1]))
+    rule = replace(SPOTS_ONLY, spots=spots)
+    origin = np.array([0.0, 0.0, z])
+    assert capper(mesh, rule, 1)(origin, UP, T) == pytest.approx(SPOT_SHARE * T)
+    assert capper(mesh, rule, 2)(origin, UP, T) == T
+    assert capper(mesh, rule)(origin, UP, T) == T  # no index: no spots
+    assert capper(mesh, SPOTS_ONLY, 1)(origin, UP, T) == T
+
+
+def test_a_march_thins_the_layers_through_a_spot_and_ramps_down_to_them() -> None:
+    """A cylinder marched with a spot at z = 6: the layers through it are half as thick,
+    those under it ramp down to them a step at most per layer, the rest stay nominal and
+    the march still ends on the top."""
+    mesh = to_trimesh(m3.Manifold.cylinder(12.0, 6.0, 6.0, 128))
+    rule = replace(SPOTS_ONLY, spots=Spots(np.array([[5.5, 0.0, 6.0]]), np.array([0])))
+    layers = list(march_layers(slicing_solid(mesh), line_curve(np.zeros(3), UP, 13.0),
+                               np.zeros(3), UP, MarchSettings(T, 0.5, 1.5),
+                               thin=capper(mesh, rule, 0)))
+    nominal = np.array([la.nominal for la in layers])
+    tops = np.array([la.origin[2] for la in layers])
+    through = (tops - nominal < 6.0) & (tops >= 6.0)
+    assert through.sum() == 1 and nominal[through][0] == pytest.approx(SPOT_SHARE * T)
+    assert np.all(np.diff(nominal[tops <= 6.0]) >= -MARGIN * thickness_step(W) - 1e-9)
+    assert np.all(nominal[(tops < 6.0 - 2.0) | (tops > 6.0 + T)][:-2] == T)
+    assert tops[-1] == pytest.approx(12.0)
