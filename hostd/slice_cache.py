@@ -1,10 +1,12 @@
-"""The slicing worker's result cache: sliced G-code and its figures, named by cache key.
+"""The slicing worker's result cache: sliced G-code and its figures, named by cache key; and
+the slicer's refusals, which the same STL, profile and code meet again.
 
 An entry is two files, ``<key>.gcode`` and ``<key>.json``; each is written to a temporary
 name, flushed to disk and renamed, the figures last, and they record the G-code's size. So
 after a power cut an entry is whole or absent: figures that do not parse, or a G-code of
 another size than they record, make the entry a miss (it is removed and sliced again), never
-an error and never a shortened print.
+an error and never a shortened print. A refusal is one file, ``<key>.refused.json``: its line
+and the upload's name in it, written the same way; one that does not parse is a miss.
 """
 
 from __future__ import annotations
@@ -85,7 +87,33 @@ class SliceCache:
         write_durably(self._meta_path(key), json.dumps(info).encode())
         return info
 
+    def _refusal_path(self, key: str) -> Path:
+        return self.root / f"{key}.refused.json"
+
+    def refusal(self, key: str) -> tuple[str, str | None] | None:
+        """The slicer's refusal of ``key`` (its line, the upload's name in it), or None."""
+        path = self._refusal_path(key)
+        try:
+            got = json.loads(path.read_bytes())
+            text, name = got["refused"], got["name"]
+        except FileNotFoundError:
+            return None
+        except (OSError, ValueError, TypeError, KeyError):
+            log.warning("slice cache: refusal %s is unreadable; slicing again", key)
+            path.unlink(missing_ok=True)
+            return None
+        if not isinstance(text, str) or not isinstance(name, str | None):
+            path.unlink(missing_ok=True)
+            return None
+        return text, name
+
+    def store_refusal(self, key: str, text: str, name: str | None) -> None:
+        """Keep the slicer's refusal of ``key``: its line ``text``, naming the upload
+        ``name``."""
+        write_durably(self._refusal_path(key),
+                      json.dumps({"refused": text, "name": name}).encode())
+
     def remove(self, key: str) -> None:
-        for path in (self._meta_path(key), self.gcode_path(key),
+        for path in (self._meta_path(key), self.gcode_path(key), self._refusal_path(key),
                      *self.root.glob(f"{key}.*.png")):
             path.unlink(missing_ok=True)

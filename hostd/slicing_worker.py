@@ -4,7 +4,9 @@ One worker process (:class:`hostd.worker_process.WorkerProcess`: spawned, so it 
 nothing with the daemon's threads) imports the slicer; the daemon itself never imports numpy
 or trimesh. Results are cached on disk by ``sha256(STL) + sha256(profile + slicer code)``
 (:class:`hostd.slice_cache.SliceCache`): an upgraded slicer never serves G-code an older one
-wrote.
+wrote. The slicer's refusals (walls over air, the head's collisions, no decomposition) are
+kept the same way: the same file sent again is refused at once, not after the minute its
+closed loop took.
 """
 
 from __future__ import annotations
@@ -40,6 +42,11 @@ CANCELLED = "slicing stopped: the job was cancelled"
 
 class SliceError(Exception):
     """The model cannot be sliced (corrupt STL, too large, slicer failure)."""
+
+
+class SliceRefused(SliceError):
+    """The slicer refused the model after planning it (walls over air, a head collision, a
+    layer in the air, no decomposition): the same STL, profile and code meet it again."""
 
 
 @dataclass(frozen=True)
@@ -191,9 +198,19 @@ def slice_in_worker(stl_path: str, values: dict[str, Any], out_path: str,
             text = text.replace(stl_path, name).replace(Path(stl_path).name, name)
             if not text.startswith(f"{name}: "):  # a refusal of the slicer's own
                 text = f"{name}: {text}"
-        raise SliceError(text) from None
+        kind = SliceRefused if isinstance(exc, refusals()) else SliceError
+        raise kind(text) from None
     os.replace(tmp, out_path)
     return {**_summary(result), "pictures": draw_pictures(result.plan, out_path)}
+
+
+def refusals() -> tuple[type[Exception], ...]:
+    """In the worker: the slicer's errors that the same input meets again
+    (:class:`SliceRefused`); a budget or a worker's death is not one of them."""
+    from slicer.decompose import DecompositionError
+    from slicer.pipeline import ReplayRefusal
+
+    return (ReplayRefusal, DecompositionError)
 
 
 PICTURES = ("decomposition", "toolpaths")
@@ -298,11 +315,16 @@ class SlicingWorker:
             if info is not None:
                 self.cache_hits += 1
                 return SliceOutcome(out, True, 0.0, info)
+            await self._refused_before(key, name)
             if self._cancelling:
                 raise SliceError(CANCELLED)
             started = time.monotonic()
             self._running = True
-            info = await self._run(stl_path, out, name, options, on_progress)
+            try:
+                info = await self._run(stl_path, out, name, options, on_progress)
+            except SliceRefused as exc:
+                await self._keep_refusal(key, str(exc), name)
+                raise
         except WorkerDied:
             for tmp in out.parent.glob(f"{out.name}.*.tmp"):  # the dead worker's partial file
                 tmp.unlink(missing_ok=True)
@@ -326,6 +348,26 @@ class SlicingWorker:
             self.failures += 1
             raise SliceError(f"cannot keep the sliced G-code: {exc.strerror or exc}") from None
         return SliceOutcome(out, False, duration, info)
+
+    async def _refused_before(self, key: str, name: str | None) -> None:
+        """Raise the slicer's refusal of ``key`` when it was kept, naming the upload
+        ``name`` (a cache hit)."""
+        kept = await asyncio.to_thread(self.cache.refusal, key)
+        if kept is None:
+            return
+        text, was = kept
+        self.cache_hits += 1
+        if was and name and was != name:
+            text = text.replace(was, name)
+        raise SliceRefused(text)
+
+    async def _keep_refusal(self, key: str, text: str, name: str | None) -> None:
+        """Keep a refusal for the next job with the same key (one that cannot be kept is
+        logged: the job's own refusal stands)."""
+        try:
+            await asyncio.to_thread(self.cache.store_refusal, key, text, name)
+        except OSError as exc:
+            log.warning("slice cache: refusal %s not kept: %s", key, exc.strerror or exc)
 
     async def _run(self, stl_path: Path, out: Path, name: str | None, options: SliceOptions,
                    on_progress: OnProgress | None) -> dict[str, Any]:

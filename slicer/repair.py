@@ -12,7 +12,11 @@ one file (a :class:`Try`); here they are tried in turn and the best file is kept
    other groups, planes and build order), each tried upright and leaning for at most
    :data:`ALTERNATIVE_ROUNDS` rounds (:func:`best_decomposition`). A seed whose plan fails
    outright (the planner's veto: no plane clears the printed part or the platform) is
-   passed over when another one plans.
+   passed over when another one plans;
+3. within each decomposition, once its leaning tries are done and none is support-free,
+   the best made again with thinner layers: where the surface overhangs a little past
+   what the height holds, then through the points where its walls are over air
+   (:func:`thinned`).
 
 Beyond the paper, which decomposes once and never looks back. The tries are ranked by
 :meth:`Try.rank`: fewest wall layers over air (what a file is refused for), then fewest

@@ -1,6 +1,7 @@
 """A daemon job whose slice has unsupported wall layers over air fails with the slicer's one
 line, naming ``hostctl print``'s own options; ``--allow-overhang`` (recorded with the job)
-lets it through with the warning in its reason, and ``--seed``/``--parts`` are kept too."""
+lets it through with the warning in its reason, and ``--seed``/``--parts`` are kept too; the
+same file sent again without it is refused at once (the refusal is kept)."""
 
 from __future__ import annotations
 
@@ -65,10 +66,15 @@ async def test_a_slice_over_air_fails_unless_the_job_allows_it(tmp_path):
             assert re.search(r"^\s*2\s+ready .* tee\.stl  \[--allow-overhang --seed 0\]",
                              out, re.M), out
 
-            # the same file without the flag: not served from the allowed job's cache
+            # the same file without the flag: not served from the allowed job's cache, but
+            # refused at once from job 1's refusal, kept with the cache
+            hits = (await c.call("printer.status"))["slicer"]["cache_hits"]
             again = await c.call("job.submit", name="tee.stl", data=_b64(tee))
             failed = await c.until_state(again["id"], "ready", "failed")
             assert failed["new"] == "failed" and "--allow-overhang" in failed["reason"]
+            assert (await c.call("printer.status"))["slicer"]["cache_hits"] == hits + 1
+            assert (await c.call("job.get", id=again["id"]))["reason"].endswith(
+                line.removeprefix("hostctl: job 1 failed: "))
             for bad, message in ((dict(seed=-1), "seed: -1 must lie in [0, 2147483647]"),
                                  (dict(parts=65), "parts: 65 must lie in [0, 64]")):
                 with pytest.raises(Exception, match=re.escape(message)):

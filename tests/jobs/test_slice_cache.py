@@ -87,3 +87,22 @@ def test_the_ready_reason_says_why_the_part_was_turned():
         f"sliced; merged 2 overlapping shells of the file into one solid; {note}")
     assert sliced_reason({"merged_shells": 2}) == (
         "sliced; merged 2 overlapping shells of the file into one solid")
+
+
+def test_a_refusal_is_kept_whole_and_removed_with_its_entry(tmp_path: Path):
+    cache = SliceCache(tmp_path / "cache")
+    assert cache.refusal(KEY) is None
+    cache.store_refusal(KEY, "tee.stl: replay found 3 unsupported wall layers", "tee.stl")
+    assert cache.refusal(KEY) == ("tee.stl: replay found 3 unsupported wall layers", "tee.stl")
+    assert [p.name for p in cache.root.iterdir()] == [f"{KEY}.refused.json"]
+    cache.remove(KEY)
+    assert list(cache.root.iterdir()) == []
+
+
+@pytest.mark.parametrize("damage", [b"", b'{"refused": "x"', b"[1, 2]",
+                                    b'{"refused": 3, "name": null}', b'{"name": "a.stl"}'])
+def test_an_unreadable_refusal_is_a_miss_and_is_removed(tmp_path: Path, damage: bytes):
+    cache = SliceCache(tmp_path / "cache")
+    (cache.root / f"{KEY}.refused.json").write_bytes(damage)
+    assert cache.refusal(KEY) is None
+    assert list(cache.root.iterdir()) == []
