@@ -357,8 +357,8 @@ class SlicingWorker:
             return
         text, was = kept
         self.cache_hits += 1
-        if was and name and was != name:
-            text = text.replace(was, name)
+        if was and name and text.startswith(f"{was}: "):  # the line names its upload first
+            text = f"{name}: {text.removeprefix(f'{was}: ')}"
         raise SliceRefused(text)
 
     async def _keep_refusal(self, key: str, text: str, name: str | None) -> None:

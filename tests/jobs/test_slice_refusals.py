@@ -51,13 +51,13 @@ async def test_a_refusal_is_kept_and_served_again_under_the_new_uploads_name(tmp
                                                                               ) -> None:
     stl = tmp_path / "part.stl"
     stl.write_bytes(b"solid x\nendsolid x\n")
-    worker = Recorded(tmp_path, [SliceRefused(f"tee.stl: {WALLS}"), SliceRefused("other")])
+    worker = Recorded(tmp_path, [SliceRefused(f"t: {WALLS}"), SliceRefused("other")])
     async with asyncio.timeout(20):
-        first = await _refusal(worker, stl, "tee.stl")
+        first = await _refusal(worker, stl, "t")  # a short name: only the line's own is new
         again = await _refusal(worker, stl, "tee (2).stl")
         # the job that allows walls over air has another key: sliced, not refused from it
-        allowed = await _refusal(worker, stl, "tee.stl", SliceOptions(allow_overhang=True))
-    assert isinstance(first, SliceRefused) and str(first) == f"tee.stl: {WALLS}"
+        allowed = await _refusal(worker, stl, "t", SliceOptions(allow_overhang=True))
+    assert isinstance(first, SliceRefused) and str(first) == f"t: {WALLS}"
     assert isinstance(again, SliceRefused) and str(again) == f"tee (2).stl: {WALLS}"
     assert str(allowed) == "other"
     assert (worker.runs, worker.cache_hits, worker.failures) == (2, 1, 3)
