@@ -261,13 +261,17 @@ def unlisted(line: str) -> float:
 
     The stages' sum leaves out the text (formatted beside the replay) and the repair's count
     of rounds; what remains of the total is the load and plan of a slice whose kept try is a
-    repair round's (its timings start at the G-code), else rounding.
+    repair round's (its timings start at the G-code), else rounding. When another
+    decomposition's try is kept, its own stages ran inside ``alternatives`` and are not
+    added again (the first decomposition's tries are ``first_decomposition``).
     """
     head, _, body = line.removeprefix("seconds ").partition(" (")
+    items = [item.partition(" ") for item in body.rstrip(")").split(", ")]
+    inside = {"plan", "gcode", "read", "replay", "repair"} if any(
+        name == "alternatives" for name, _, _ in items) else set()
     listed = 0.0
-    for item in body.rstrip(")").split(", "):
-        name, _, value = item.partition(" ")
-        if name not in ("text", "repair_rounds") and value:
+    for name, _, value in items:
+        if name not in ("text", "repair_rounds", *inside) and value:
             listed += float(value.split()[0])
     return float(head) - listed
 
