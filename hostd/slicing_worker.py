@@ -315,9 +315,9 @@ class SlicingWorker:
             if info is not None:
                 self.cache_hits += 1
                 return SliceOutcome(out, True, 0.0, info)
-            await self._refused_before(key, name)
             if self._cancelling:
                 raise SliceError(CANCELLED)
+            await self._refused_before(key, name)
             started = time.monotonic()
             self._running = True
             try:
