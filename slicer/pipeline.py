@@ -434,7 +434,7 @@ class _Slicing:
         def thin(base: Try[SliceResult], spots: bool) -> Try[SliceResult]:
             rule = base.thinning or self.thinning(slopes=not spots)
             if spots:
-                rule = replace(rule, spots=base.spots())
+                rule = replace(rule, spots=base.spots(), first=self.first_thickness(rule))
             return replace(replanned(base.hints, rule), thinning=rule)
 
         retry = again if plan.decomposition is not None and rounds != 0 else None
@@ -465,6 +465,14 @@ class _Slicing:
             return held_heights(angles, width)
 
         return Thinning(held if slopes else any_height, THINNEST, thickness_step(width))
+
+    def first_thickness(self, rule: Thinning) -> float:
+        """How thick a first layer on a parent's beads is made through a spot
+        (``Thinning.first``): the thickest bead the settings allow
+        (:meth:`~slicer.settings.ProcessSettings.max_layer_share`), no more than a nominal
+        layer plus ``rule.step``, mm."""
+        t = self.settings.layer_height
+        return min(self.settings.max_layer_share() * t, t + rule.step)
 
     def _unseen(self, dec: Decomposition) -> None:
         """Remember ``dec``; :class:`repair.Refused` when one with the same sub-parts was

@@ -61,8 +61,9 @@ Accept = Callable[[np.ndarray, np.ndarray, BaseGeometry], "str | None"]
 #: (default: the curve's tangent; :mod:`slicer.paths.lean` leans them off it).
 Direction = Callable[[np.ndarray], np.ndarray]
 
-#: ``thin(origin (3,), normal (3,), t) -> float``: the nominal thickness (at most ``t``) of
-#: the layer above the plane (origin, normal) (:func:`slicer.paths.thin_layers.layer_cap`).
+#: ``thin(origin (3,), normal (3,), t) -> float``: the nominal thickness of the layer above
+#: the plane (origin, normal) (:func:`slicer.paths.thin_layers.layer_cap`): at most ``t``,
+#: but for a first layer on a parent's beads.
 Thin = Callable[[np.ndarray, np.ndarray, float], float]
 
 
@@ -101,7 +102,8 @@ class LayerPlane:
         Angle between this normal and the one below, degrees.
     nominal : float
         The layer height it was marched at, mm: the settings', or less where the march
-        thinned it (:mod:`slicer.paths.thin_layers`); 0 unknown. The last layers, fitted to
+        thinned it (:mod:`slicer.paths.thin_layers`), more for a first layer on a parent's
+        beads through a spot; 0 unknown. The last layers, fitted to
         the part's far end (:func:`fit_end`), keep the height they would have had:
         ``thickness`` says how thick they are.
     """
@@ -297,8 +299,12 @@ def _end_height(solid: m3.Manifold, hull: np.ndarray, below: tuple[np.ndarray, n
 
 
 def _thinned(ms: MarchSettings, t: float) -> MarchSettings:
-    """``ms`` for a layer of nominal thickness ``t`` (at most ``ms.t``)."""
-    return ms if t >= ms.t else replace(ms, t=t)
+    """``ms`` for a layer of nominal thickness ``t``: thinner than ``ms.t`` its bounds and
+    turn scale with it; thicker (a first layer on a parent's beads,
+    :func:`slicer.paths.thin_layers.first_cap`) it is exactly that thick."""
+    if t > ms.t:
+        return replace(ms, t=t, f_min=1.0, f_max=1.0)
+    return ms if t == ms.t else replace(ms, t=t)
 
 
 def _step(curve: SkeletonCurve, s_prev: float, below: tuple[np.ndarray, np.ndarray],

@@ -48,7 +48,7 @@ from slicer.paths.subpart_paths import build_layers, pool, workers
 from slicer.paths.thin_layers import Thinning, capper
 from slicer.paths.upright import NO_HINTS, Leaned, LeanHints, lean_upright, turning_of
 from slicer.plan import Layer, PrintPlan, SubpartPlan
-from slicer.planes2d import from_plane, plane_frame, section, slicing_solid
+from slicer.planes2d import from_plane, plane_frame, section, slicing_solid, unit
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
 
@@ -272,7 +272,8 @@ def _slice_subpart(index: int, mesh: trimesh.Trimesh, base: tuple[np.ndarray, np
         return machine.accept(origin, frame, region)
 
     layers = []
-    cap = None if thin is None else capper(mesh, thin, index)
+    cap = None if thin is None else capper(mesh, thin, index,
+                                           None if base[2] else (centre, unit(base[1])[0][0]))
     for layer in march_layers(solid, curve, centre, base[1], _march(settings), accept, index,
                               direction, cap):
         layers.append(layer)

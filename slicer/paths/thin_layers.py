@@ -21,7 +21,12 @@ at its own height plus the ramp's rise to it.
 over air on a surface the rule holds at the nominal height (a wall at 45° whose layers turn
 under it, a branch's first layers on its parent's flank), the layers through those points
 are made again at :data:`SPOT_SHARE` of the height, the layers under them ramping down as
-above. Beyond the paper, which prints every layer at one height.
+above; but a spot in the first layer of a sub-part printed on another makes that layer
+*thicker* (``Thinning.first``): it stands on the parent's beads where their layers meet the
+cut at an angle, in rows ``t / sin θ`` apart on the cut face, and the rule finds them within
+a cone that widens with the layer's own height (a thinner first layer misses more of the
+points between two rows; pipe12 and pipe32 of the sweep at 0.2 mm: parent's layers at 34°,
+rows 0.36 mm apart). Beyond the paper, which prints every layer at one height.
 """
 
 from __future__ import annotations
@@ -85,6 +90,10 @@ class Thinning:
     thinnest: float
     step: float = math.inf
     spots: Spots = NO_SPOTS
+    first: float = 0.0
+    """The first layer of a sub-part printed on another, through a spot, is this thick, mm
+    (no thicker than a nominal layer plus ``step``: the next one, nominal, must not step
+    out over a 45° wall); 0 (or no more than the nominal height): thinned like any other."""
 
 
 @dataclass(frozen=True)
@@ -106,15 +115,35 @@ class SteepFaces:
 
 
 def layer_cap(surface: SteepFaces, origin: np.ndarray, normal: np.ndarray, t: float,
-              thinning: Thinning, spots: np.ndarray | None = None) -> float:
+              thinning: Thinning, spots: np.ndarray | None = None, first: bool = False
+              ) -> float:
     """The next layer's thickness above the plane (``origin``, unit ``normal``) below it,
     mm: ``t``, or less where a face of ``surface`` overhangs past what ``t`` holds and a
     layer no thinner than ``thinning.thinnest`` holds it: :data:`MARGIN` of the height that
     holds the steepest such face within ``t`` above that plane, or of one farther up plus
     the ramp's rise to it (``thinning.step`` a nominal layer height); no more than
-    :func:`spot_cap` of ``spots`` (j, 3)."""
-    by_place = t if spots is None else spot_cap(spots, origin, normal, t, thinning)
-    return min(_slope_cap(surface, origin, normal, t, thinning), by_place)
+    :func:`spot_cap` of ``spots`` (j, 3). The ``first`` layer of a sub-part printed on
+    another may be thicker (:func:`first_cap`) where no face asks for a thinner one."""
+    slopes = _slope_cap(surface, origin, normal, t, thinning)
+    if spots is None:
+        return slopes
+    if first and slopes >= t:
+        thick = first_cap(spots, origin, normal, t, thinning)
+        if thick > t:
+            return thick
+    return min(slopes, spot_cap(spots, origin, normal, t, thinning))
+
+
+def first_cap(spots: np.ndarray, origin: np.ndarray, normal: np.ndarray, t: float,
+              thinning: Thinning) -> float:
+    """The thickness of a first layer on a parent's cut (``origin``, unit ``normal``) for
+    the ``spots`` (j, 3): ``thinning.first`` when one lies in the slab that thick above the
+    cut, else ``t``."""
+    if thinning.first <= t or not len(spots):
+        return t
+    h = (np.asarray(spots, dtype=float) - np.asarray(origin, dtype=float)) @ normal
+    inside = (h > 0.0) & (h <= thinning.first + 1e-6)
+    return float(thinning.first) if inside.any() else t
 
 
 def _ramp(thinning: Thinning, t: float) -> float:
@@ -164,14 +193,24 @@ def _slope_cap(surface: SteepFaces, origin: np.ndarray, normal: np.ndarray, t: f
     return float(min(caps.min(), t)) if len(caps) else t
 
 
-def capper(mesh: trimesh.Trimesh, thinning: Thinning, index: int | None = None
+def capper(mesh: trimesh.Trimesh, thinning: Thinning, index: int | None = None,
+           base: tuple[np.ndarray, np.ndarray] | None = None
            ) -> Callable[[np.ndarray, np.ndarray, float], float]:
     """:func:`layer_cap` over the surface of ``mesh``, sub-part ``index`` (its spots), as a
-    march takes it (``thin(origin, normal, t)``)."""
+    march takes it (``thin(origin, normal, t)``); ``base`` (point, unit normal): the plane a
+    sub-part printed on another starts on (its first layer is the one above it)."""
     surface = SteepFaces.of(mesh)
     spots = thinning.spots.of(index)
 
     def thin(origin: np.ndarray, normal: np.ndarray, t: float) -> float:
-        return layer_cap(surface, origin, normal, t, thinning, spots)
+        first = base is not None and on_plane(origin, normal, base)
+        return layer_cap(surface, origin, normal, t, thinning, spots, first)
 
     return thin
+
+
+def on_plane(origin: np.ndarray, normal: np.ndarray,
+             plane: tuple[np.ndarray, np.ndarray]) -> bool:
+    """Whether the plane (``origin``, unit ``normal``) is ``plane`` (point, unit normal)."""
+    across = abs(float((np.asarray(origin, dtype=float) - plane[0]) @ plane[1]))
+    return across < 1e-6 and float(np.asarray(normal, dtype=float) @ plane[1]) > 1.0 - 1e-9

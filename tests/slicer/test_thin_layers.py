@@ -1,7 +1,8 @@
 """Thinner layers where the surface overhangs a little past what the layer height holds
 (slicer.paths.thin_layers): the cap of one layer, a march through a flared collar, and the
 closed loop holding a ball on its stem at 0.2 mm that no lean holds; and thinner layers
-through the spots where a try's walls were over air, whatever the slope."""
+through the spots where a try's walls were over air, whatever the slope (a thicker first
+layer where a spot lies in a child's first layer on its parent's beads)."""
 
 from __future__ import annotations
 
@@ -24,7 +25,9 @@ from slicer.paths.thin_layers import (
     SPOT_SHARE,
     SteepFaces,
     capper,
+    first_cap,
     layer_cap,
+    on_plane,
     spot_cap,
 )
 from slicer.pipeline import slice_model
@@ -208,3 +211,68 @@ def test_a_march_thins_the_layers_through_a_spot_and_ramps_down_to_them() -> Non
     assert np.all(np.diff(nominal[tops <= 6.0]) >= -MARGIN * thickness_step(W) - 1e-9)
     assert np.all(nominal[(tops < 6.0 - 2.0) | (tops > 6.0 + T)][:-2] == T)
     assert tops[-1] == pytest.approx(12.0)
+
+
+THICK = replace(SPOTS_ONLY, first=T + thickness_step(W))
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_spot_in_a_childs_first_layer_makes_that_layer_thicker(seed: int) -> None:
+    """On the cut a child starts from, a spot within the thicker layer's slab makes the
+    first layer ``Thinning.first`` thick; a spot past it or below the cut leaves it
+    nominal, and off the first layer the same spot halves the layer as before."""
+    rng = np.random.default_rng(seed)
+    normal = rng.normal(size=3)
+    normal /= np.linalg.norm(normal)
+    origin = rng.uniform(-5.0, 5.0, 3)
+    side = np.cross(normal, rng.normal(size=3))
+
+    def at(h: float) -> np.ndarray:
+        return (origin + h * normal + 4.0 * side)[None, :]
+
+    surface = SteepFaces.of(to_trimesh(m3.Manifold.cylinder(1.0, 0.5, 0.5, 16)
+                                       .translate((50.0, 50.0, 50.0))))  # far away
+    for h in (0.5 * T, T, THICK.first):
+        assert first_cap(at(h), origin, normal, T, THICK) == pytest.approx(THICK.first)
+        assert layer_cap(surface, origin, normal, T, THICK, at(h), first=True) == \
+            pytest.approx(THICK.first)
+        assert layer_cap(surface, origin, normal, T, THICK, at(h)) < T  # not a first layer
+    for h in (-0.05, THICK.first + 0.02):
+        assert first_cap(at(h), origin, normal, T, THICK) == T
+    assert first_cap(at(T), origin, normal, T, SPOTS_ONLY) == T  # no thicker first layer
+    # a layer the slope thins stays thin: no first layer thicker over a steep face
+    flare = to_trimesh(collar(55.0))
+    z = 5.5
+    spot = np.array([[6.2, 0.0, z + T]])
+    cap = layer_cap(SteepFaces.of(flare), np.array([0.0, 0.0, z]), UP, T,
+                    replace(THICK, held=RULE.held), spot, first=True)
+    assert cap < T
+
+
+def test_the_capper_knows_a_childs_first_layer_by_its_base_plane() -> None:
+    mesh = to_trimesh(m3.Manifold.cylinder(6.0, 4.0, 4.0, 64))
+    base = (np.array([0.0, 0.0, 0.0]), UP)
+    rule = replace(THICK, spots=Spots(np.array([[3.5, 0.0, T]]), np.array([0])))
+    assert capper(mesh, rule, 0, base)(base[0], UP, T) == pytest.approx(THICK.first)
+    assert capper(mesh, rule, 0)(base[0], UP, T) == pytest.approx(SPOT_SHARE * T)  # a root
+    assert on_plane(base[0] + 1e-9 * UP, UP, base)
+    assert not on_plane(base[0] + 0.01 * UP, UP, base)
+    tilted = np.array([0.0, 0.01, 1.0]) / np.linalg.norm([0.0, 0.01, 1.0])
+    assert not on_plane(base[0], tilted, base)
+
+
+def test_a_march_on_a_cut_lays_a_thick_first_layer_then_nominal_ones() -> None:
+    """A child (a cylinder on a cut at z = 0) with a spot in its first layer: that layer
+    is ``Thinning.first`` thick, every other nominal, and the march still ends on the
+    top."""
+    mesh = to_trimesh(m3.Manifold.cylinder(6.0, 4.0, 4.0, 128))
+    rule = replace(THICK, spots=Spots(np.array([[3.8, 0.0, T]]), np.array([3])))
+    layers = list(march_layers(slicing_solid(mesh), line_curve(np.zeros(3), UP, 7.0),
+                               np.zeros(3), UP, MarchSettings(T, 0.5, 1.5),
+                               thin=capper(mesh, rule, 3, (np.zeros(3), UP))))
+    nominal = np.array([la.nominal for la in layers])
+    assert nominal[0] == pytest.approx(THICK.first)
+    assert layers[0].origin[2] == pytest.approx(THICK.first)
+    assert layers[0].thickness == pytest.approx((THICK.first, THICK.first))
+    assert np.all(nominal[1:-2] == T)
+    assert layers[-1].origin[2] == pytest.approx(6.0)
