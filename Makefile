@@ -20,8 +20,11 @@ lint: $(STAMP)
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 
+# The suite on both cores (pytest-xdist, a test file a worker), then the tests that compare
+# rates measured in their own run, alone.
 pytest: $(STAMP)
-	$(BIN)/pytest -q
+	$(BIN)/pytest -q -n 2 --dist loadfile -m "not serial" --durations=15
+	$(BIN)/pytest -q -m serial
 
 test: lint test-octoprint pytest
 

@@ -326,8 +326,7 @@ class SlicingWorker:
                 await self._keep_refusal(key, str(exc), name)
                 raise
         except WorkerDied:
-            for tmp in out.parent.glob(f"{out.name}.*.tmp"):  # the dead worker's partial file
-                tmp.unlink(missing_ok=True)
+            await asyncio.to_thread(self._discard, key, out)
             if self._cancelling:
                 raise SliceError(CANCELLED) from None
             self.failures += 1
@@ -339,6 +338,9 @@ class SlicingWorker:
         finally:
             self.active -= 1
             self._running = False
+        if self._cancelling:  # it returned as it was ended: nobody wants the file
+            await asyncio.to_thread(self._discard, key, out)
+            raise SliceError(CANCELLED)
         duration = time.monotonic() - started
         self.durations.observe(duration)
         self.last_duration_s = duration
@@ -348,6 +350,14 @@ class SlicingWorker:
             self.failures += 1
             raise SliceError(f"cannot keep the sliced G-code: {exc.strerror or exc}") from None
         return SliceOutcome(out, False, duration, info)
+
+    def _discard(self, key: str, out: Path) -> None:
+        """What a worker ended mid-slice left under ``key``: its partial G-code, or the
+        G-code and pictures of a slice it finished as it was ended or cancelled (no info
+        was kept for them: not a cache entry, and the job is gone)."""
+        for tmp in out.parent.glob(f"{out.name}.*.tmp"):
+            tmp.unlink(missing_ok=True)
+        self.cache.remove(key)
 
     async def _refused_before(self, key: str, name: str | None) -> None:
         """Raise the slicer's refusal of ``key`` when it was kept, naming the upload

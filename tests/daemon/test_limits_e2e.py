@@ -17,7 +17,9 @@ from typing import Any
 import pytest
 from hostd_harness import ROOT, DaemonProc, Rpc, free_port, scrape
 
-pytestmark = pytest.mark.asyncio
+# rates before and during a flood: with other tests beside them the load differs between
+# the two windows, so these run alone (`make pytest`, the "serial" marker)
+pytestmark = [pytest.mark.asyncio, pytest.mark.serial]
 
 FLOOD = ROOT / "bench" / "flood.py"
 
