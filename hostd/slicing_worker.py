@@ -318,6 +318,8 @@ class SlicingWorker:
             if self._cancelling:
                 raise SliceError(CANCELLED)
             await self._refused_before(key, name)
+            if self._cancelling:  # during the refusal's look-up: the slice never starts
+                raise SliceError(CANCELLED)
             started = time.monotonic()
             self._running = True
             try:
@@ -331,9 +333,10 @@ class SlicingWorker:
                 raise SliceError(CANCELLED) from None
             self.failures += 1
             raise SliceError("the slicing worker died (out of memory?)") from None
-        except SliceError as exc:
-            if exc.args != (CANCELLED,):
-                self.failures += 1
+        except SliceError:
+            if self._cancelling:  # what the ended slice said last (its STL deleted, ...)
+                raise SliceError(CANCELLED) from None
+            self.failures += 1
             raise
         finally:
             self.active -= 1
