@@ -1,7 +1,13 @@
 """hostctl slice of a part whose replay finds unsupported wall layers: refused (exit 1, no
 file) in one line naming the worst layer and only options the command has, its preview
 drawn anyway with the unsupported walls in red; written with a warning under
-``--allow-overhang``; ``--seed``/``--parts`` reach the decomposition."""
+``--allow-overhang``; ``--seed``/``--parts`` reach the decomposition.
+
+The part is a small block with a horizontal bore: the bore's ceiling is a wall over air
+whatever the closed loop tries, as is the lip of a tee's branch bore in the trunk
+(``tests/slicer/test_replay_walls.py``); the block is one sub-part (every other
+decomposition the loop tries is the same one) and sliced in a fraction of the tee's time.
+"""
 
 from __future__ import annotations
 
@@ -9,19 +15,28 @@ import re
 from pathlib import Path
 from typing import Any
 
+import manifold3d as m3
 import numpy as np
 import pytest
+import trimesh
 
 from hostd.cli.main import build_parser, main
-from slicer.mesh.samples import branched_pipe
+from slicer.mesh.samples import to_trimesh
 from slicer.repair import ALTERNATIVES  # seeds the closed loop tries after the first
 
 
+def bored_block() -> trimesh.Trimesh:
+    """A 12 × 12 × 10 mm block with a horizontal bore R2.5 through it at mid-height."""
+    block = m3.Manifold.cube([12.0, 12.0, 10.0], True).translate([0.0, 0.0, 5.0])
+    bore = m3.Manifold.cylinder(14.0, 2.5, 2.5, 24, True).rotate([0.0, 90.0, 0.0])
+    return to_trimesh(block - bore.translate([0.0, 0.0, 5.0]))
+
+
 @pytest.fixture(scope="module")
-def tee(tmp_path_factory) -> Path:
-    """A tube with a horizontal branch: its underside's lip is an unsupported wall."""
-    path = tmp_path_factory.mktemp("models") / "tee.stl"
-    branched_pipe(((12.0, 0.0, 0.0),), height=26.0, branch_length=20.0).export(path)
+def bored(tmp_path_factory) -> Path:
+    """A part whose bore's ceiling is an unsupported wall."""
+    path = tmp_path_factory.mktemp("models") / "bored.stl"
+    bored_block().export(path)
     return path
 
 
@@ -40,14 +55,14 @@ def _red_share(png: Path) -> float:
     return float(red.mean())
 
 
-def test_a_file_with_unsupported_walls_is_refused_and_its_preview_marks_them(tee, tmp_path,
-                                                                            capsys):
-    out, png = tmp_path / "tee.gcode", tmp_path / "tee.png"
-    rc = main(["slice", str(tee), "-o", str(out), "--preview", str(png)])
+def test_a_file_with_unsupported_walls_is_refused_and_its_preview_marks_them(bored, tmp_path,
+                                                                              capsys):
+    out, png = tmp_path / "bored.gcode", tmp_path / "bored.png"
+    rc = main(["slice", str(bored), "-o", str(out), "--preview", str(png)])
     err = capsys.readouterr().err.strip()
     assert rc == 1 and not out.exists()
     assert len(err.splitlines()) == 1
-    assert re.match(rf"hostctl: {re.escape(str(tee))}: replay found \d+ unsupported wall "
+    assert re.match(rf"hostctl: {re.escape(str(bored))}: replay found \d+ unsupported wall "
                     r"layers over air .*; refusing to write the file: worst sub-part \d+ layer "
                     r"\d+, [\d.]+% of its \d+ wall points unsupported, around \[.*\] mm \(part "
                     rf"frame\); try --seed {ALTERNATIVES + 1} \(or another seed\), another "
@@ -57,9 +72,9 @@ def test_a_file_with_unsupported_walls_is_refused_and_its_preview_marks_them(tee
     assert _red_share(png) > 1e-4  # the preview is drawn, the failing walls in red
 
 
-def test_allow_overhang_writes_it_with_a_warning_of_the_same_figures(tee, tmp_path, capsys):
-    out, png = tmp_path / "tee.gcode", tmp_path / "tee.png"
-    rc = main(["slice", str(tee), "-o", str(out), "--allow-overhang", "--preview", str(png)])
+def test_allow_overhang_writes_it_with_a_warning_of_the_same_figures(bored, tmp_path, capsys):
+    out, png = tmp_path / "bored.gcode", tmp_path / "bored.png"
+    rc = main(["slice", str(bored), "-o", str(out), "--allow-overhang", "--preview", str(png)])
     captured = capsys.readouterr()
     assert rc == 0 and out.exists()
     (warning,) = [ln for ln in captured.err.splitlines() if ln.startswith("hostctl: warning:")]
@@ -72,7 +87,7 @@ def test_allow_overhang_writes_it_with_a_warning_of_the_same_figures(tee, tmp_pa
     assert _red_share(png) > 1e-4
 
 
-def test_seed_and_parts_reach_the_decomposition(tee, tmp_path, monkeypatch, capsys):
+def test_seed_and_parts_reach_the_decomposition(bored, tmp_path, monkeypatch, capsys):
     import slicer.pipeline
 
     seen: dict[str, Any] = {}
@@ -82,12 +97,12 @@ def test_seed_and_parts_reach_the_decomposition(tee, tmp_path, monkeypatch, caps
         raise slicer.pipeline.SliceError("stop here")
 
     monkeypatch.setattr(slicer.pipeline, "slice_model", fake)
-    rc = main(["slice", str(tee), "-o", str(tmp_path / "o.gcode"), "--seed", "7",
+    rc = main(["slice", str(bored), "-o", str(tmp_path / "o.gcode"), "--seed", "7",
                "--parts", "3", "--allow-overhang"])
     assert rc == 1 and "stop here" in capsys.readouterr().err
     dec = seen["decompose_settings"]
     assert (dec.seed, dec.parts, seen["allow_overhang"]) == (7, 3, True)
-    rc = main(["slice", str(tee), "-o", str(tmp_path / "o.gcode")])
+    rc = main(["slice", str(bored), "-o", str(tmp_path / "o.gcode")])
     assert seen["decompose_settings"].seed == 0 and seen["allow_overhang"] is False
 
 
@@ -95,9 +110,9 @@ def test_seed_and_parts_reach_the_decomposition(tee, tmp_path, monkeypatch, caps
     ("--parts", "65", "[0, 64] (as decompose.parts)"),
     ("--seed", "-1", "[0, 2147483647] (as decompose.seed)"),
 ])
-def test_seed_and_parts_keep_the_bounds_of_their_keys(tee, tmp_path, capsys, option, value,
-                                                     bounds):
-    rc = main(["slice", str(tee), "-o", str(tmp_path / "o.gcode"), option, value])
+def test_seed_and_parts_keep_the_bounds_of_their_keys(bored, tmp_path, capsys, option,
+                                                       value, bounds):
+    rc = main(["slice", str(bored), "-o", str(tmp_path / "o.gcode"), option, value])
     assert rc == 2
     assert capsys.readouterr().err.strip() == f"hostctl: {option} {value}: must lie in {bounds}"
     assert not np.any([p.suffix == ".gcode" for p in tmp_path.iterdir()])

@@ -1,7 +1,12 @@
 """A daemon job whose slice has unsupported wall layers over air fails with the slicer's one
 line, naming ``hostctl print``'s own options; ``--allow-overhang`` (recorded with the job)
 lets it through with the warning in its reason, and ``--seed``/``--parts`` are kept too; the
-same file sent again without it is refused at once (the refusal is kept)."""
+same file sent again without it is refused at once (the refusal is kept).
+
+The part is a small block with a horizontal bore, whose ceiling is a wall over air whatever
+the closed loop tries (as ``tests/cli/test_cli_slice_overhang.py``): one sub-part, sliced in
+a fraction of the time of a tee's branch lip (``tests/slicer/test_replay_walls.py``).
+"""
 
 from __future__ import annotations
 
@@ -10,11 +15,13 @@ import json
 import re
 from pathlib import Path
 
+import manifold3d as m3
 import pytest
+import trimesh
 from hostd_harness import DaemonProc, hostctl
 
 from hostd.cli.main import build_parser
-from slicer.mesh.samples import branched_pipe
+from slicer.mesh.samples import to_trimesh
 from slicer.repair import ALTERNATIVES  # seeds the closed loop tries after the first
 
 pytestmark = [pytest.mark.asyncio, pytest.mark.slow]
@@ -26,9 +33,16 @@ def _print_options() -> set[str]:
     return {o for a in sub.choices["print"]._actions for o in a.option_strings}
 
 
+def bored_block() -> trimesh.Trimesh:
+    """A 12 × 12 × 10 mm block with a horizontal bore R2.5 through it at mid-height."""
+    block = m3.Manifold.cube([12.0, 12.0, 10.0], True).translate([0.0, 0.0, 5.0])
+    bore = m3.Manifold.cylinder(14.0, 2.5, 2.5, 24, True).rotate([0.0, 90.0, 0.0])
+    return to_trimesh(block - bore.translate([0.0, 0.0, 5.0]))
+
+
 async def test_a_slice_over_air_fails_unless_the_job_allows_it(tmp_path):
-    tee = tmp_path / "tee.stl"
-    branched_pipe(((12.0, 0.0, 0.0),), height=26.0, branch_length=20.0).export(tee)
+    bored = tmp_path / "bored.stl"
+    bored_block().export(bored)
     d = DaemonProc(tmp_path)
     await d.start()
     try:
@@ -37,10 +51,10 @@ async def test_a_slice_over_air_fails_unless_the_job_allows_it(tmp_path):
             await c.call("events.subscribe", events=["job.state"])
             rc, _, err = await hostctl(d.socket, "queue", "hold")  # the allowed job waits
             assert rc == 0, err
-            rc, out, err = await hostctl(d.socket, "print", str(tee), "--wait")
+            rc, out, err = await hostctl(d.socket, "print", str(bored), "--wait")
             assert rc == 1, (out, err)
             (line,) = err.strip().splitlines()
-            assert re.match(r"hostctl: job 1 failed: slicing failed: tee\.stl: replay found \d+ "
+            assert re.match(r"hostctl: job 1 failed: slicing failed: bored\.stl: replay found \d+ "
                             r"unsupported wall layers over air .*; refusing to write the file: "
                             r"worst sub-part \d+ layer \d+, [\d.]+% of its \d+ wall points "
                             r"unsupported, around \[.*\] mm \(part frame\); "
@@ -49,7 +63,7 @@ async def test_a_slice_over_air_fails_unless_the_job_allows_it(tmp_path):
                             r"--allow-overhang to write it as it is$", line), line
             assert set(re.findall(r"--[a-z-]+", line)) <= _print_options()
 
-            rc, out, err = await hostctl(d.socket, "print", str(tee), "--allow-overhang",
+            rc, out, err = await hostctl(d.socket, "print", str(bored), "--allow-overhang",
                                          "--seed", "0", "--json")
             assert rc == 0, err
             job = json.loads(out)
@@ -63,13 +77,13 @@ async def test_a_slice_over_air_fails_unless_the_job_allows_it(tmp_path):
                              r"sub-part", got["reason"]), got["reason"]
             assert got["info"]["unsupported_wall_layers"] > 0
             rc, out, _ = await hostctl(d.socket, "jobs")
-            assert re.search(r"^\s*2\s+ready .* tee\.stl  \[--allow-overhang --seed 0\]",
+            assert re.search(r"^\s*2\s+ready .* bored\.stl  \[--allow-overhang --seed 0\]",
                              out, re.M), out
 
             # the same file without the flag: not served from the allowed job's cache, but
             # refused at once from job 1's refusal, kept with the cache
             hits = (await c.call("printer.status"))["slicer"]["cache_hits"]
-            again = await c.call("job.submit", name="tee.stl", data=_b64(tee))
+            again = await c.call("job.submit", name="bored.stl", data=_b64(bored))
             failed = await c.until_state(again["id"], "ready", "failed")
             assert failed["new"] == "failed" and "--allow-overhang" in failed["reason"]
             assert (await c.call("printer.status"))["slicer"]["cache_hits"] == hits + 1
@@ -78,7 +92,7 @@ async def test_a_slice_over_air_fails_unless_the_job_allows_it(tmp_path):
             for bad, message in ((dict(seed=-1), "seed: -1 must lie in [0, 2147483647]"),
                                  (dict(parts=65), "parts: 65 must lie in [0, 64]")):
                 with pytest.raises(Exception, match=re.escape(message)):
-                    await c.call("job.submit", name="tee.stl", data=_b64(tee), **bad)
+                    await c.call("job.submit", name="bored.stl", data=_b64(bored), **bad)
             await c.close()
     finally:
         assert await d.stop() == 0
