@@ -34,12 +34,16 @@ from slicer.settings import ProcessSettings
 
 GEO = MachineGeometry()
 OFFSET = np.array([30.0, -20.0, 5.0])  # where the STL lies: not the platform frame
-BRANCH_Z, BRANCH_R, TUBE_R = 12.0, 7.0, 10.0
+BRANCH_Z, BRANCH_R, BRANCH_LENGTH, TUBE_R = 7.0, 4.5, 12.0, 6.0
 
 
 def small_tee() -> trimesh.Trimesh:
-    """A tube R10 × 26 with a horizontal branch R7 at z 12, 20 mm long, moved to OFFSET."""
-    mesh = branched_pipe(((BRANCH_Z, 0.0, 0.0),), height=26.0, branch_length=20.0)
+    """A tube R6 × 14 on a disc R9 with a horizontal branch R4.5 at z 7, 12 mm long from the
+    tube's axis, moved to OFFSET; 32 facets around a circle (the closed loop refuses it for
+    the same lip as a tube R10 × 26 with a branch R7, in half the time)."""
+    mesh = branched_pipe(((BRANCH_Z, 0.0, 0.0),), radius=TUBE_R, height=14.0,
+                         branch_radius=BRANCH_R, branch_length=BRANCH_LENGTH, base_radius=9.0,
+                         base_height=2.0, segments=32)
     return mesh.apply_translation(OFFSET)
 
 
@@ -91,8 +95,9 @@ def test_the_refusal_names_a_point_of_the_branch_underside_in_the_stl_frame(refu
     assert at is not None
     point = np.array([float(v) for v in at.group(1).split(",")])
     x, y, z = point - OFFSET
-    # the lip of the branch (+x) under its axis, beside the trunk, in the file's coordinates
-    assert TUBE_R - 1.0 < x < TUBE_R + 8.0 and abs(y) < BRANCH_R
+    # the lip of the branch (+x) under its axis, beside the trunk (within 4/5 of the branch's
+    # length outside it), in the file's coordinates
+    assert TUBE_R - 1.0 < x < TUBE_R + 0.8 * (BRANCH_LENGTH - TUBE_R) and abs(y) < BRANCH_R
     assert BRANCH_Z - BRANCH_R - 0.5 < z < BRANCH_Z
     assert _distance(point[None], 1.0)[0] < 1.0
 
