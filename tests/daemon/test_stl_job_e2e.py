@@ -137,7 +137,8 @@ async def test_cancelling_a_job_while_it_slices_stops_the_slice(daemon_factory, 
             assert gone == {"deleted": slow["id"]}
         else:
             assert gone["state"] == "cancelled"
-        small = await c.call("job.submit", name="cyl.stl", data=_stl(cylinder()))
+        small = await c.call("job.submit", name="cyl.stl",
+                             data=_stl(cylinder(radius=6, height=3)))
         await c.until_state(small["id"], "completed", "failed")
         got = await c.call("job.get", id=small["id"])
         slicer = (await c.call("printer.status"))["slicer"]
