@@ -41,7 +41,7 @@ async def test_the_page_uploads_an_stl_and_shows_it_print_to_completion(tmp_path
     d = DaemonProc(tmp_path, http__enabled=True, http__port=port, http__api_key_file=str(keys),
                    sim__throttle=True)
     part = tmp_path / "peg.stl"
-    cylinder(radius=6.0, height=12.0).export(part, file_type="stl")
+    cylinder(radius=6.0, height=3.0).export(part, file_type="stl")
     async with asyncio.timeout(240):
         await d.start()
         try:
