@@ -72,6 +72,16 @@ def cylinder(radius: float = 10.0, height: float = 60.0, segments: int = SEGMENT
     return to_trimesh(m3.Manifold.cylinder(height, radius, radius, segments))
 
 
+def bored_block(size: float = 12.0, height: float = 10.0, bore_radius: float = 2.5,
+                segments: int = 24) -> trimesh.Trimesh:
+    """A ``size`` × ``size`` × ``height`` block on z = 0 with a horizontal bore along X at
+    mid-height: its ceiling is a wall over air in any planar print (the tests' quickest part
+    the closed loop refuses)."""
+    block = m3.Manifold.cube([size, size, height], True).translate([0.0, 0.0, height / 2])
+    bore = m3.Manifold.cylinder(size + 2.0, bore_radius, bore_radius, segments, True)
+    return to_trimesh(block - bore.rotate([0.0, 90.0, 0.0]).translate([0.0, 0.0, height / 2]))
+
+
 def _tube_with_base(radius: float, wall: float, height: float, base_radius: float,
                     base_height: float, segments: int) -> tuple[m3.Manifold, m3.Manifold]:
     """(outer solid, bore) of a vertical tube on a solid disc base (a cup open at the top)."""

@@ -15,21 +15,12 @@ import re
 from pathlib import Path
 from typing import Any
 
-import manifold3d as m3
 import numpy as np
 import pytest
-import trimesh
 
 from hostd.cli.main import build_parser, main
-from slicer.mesh.samples import to_trimesh
+from slicer.mesh.samples import bored_block
 from slicer.repair import ALTERNATIVES  # seeds the closed loop tries after the first
-
-
-def bored_block() -> trimesh.Trimesh:
-    """A 12 × 12 × 10 mm block with a horizontal bore R2.5 through it at mid-height."""
-    block = m3.Manifold.cube([12.0, 12.0, 10.0], True).translate([0.0, 0.0, 5.0])
-    bore = m3.Manifold.cylinder(14.0, 2.5, 2.5, 24, True).rotate([0.0, 90.0, 0.0])
-    return to_trimesh(block - bore.translate([0.0, 0.0, 5.0]))
 
 
 @pytest.fixture(scope="module")

@@ -15,13 +15,11 @@ import json
 import re
 from pathlib import Path
 
-import manifold3d as m3
 import pytest
-import trimesh
 from hostd_harness import DaemonProc, hostctl
 
 from hostd.cli.main import build_parser
-from slicer.mesh.samples import to_trimesh
+from slicer.mesh.samples import bored_block
 from slicer.repair import ALTERNATIVES  # seeds the closed loop tries after the first
 
 pytestmark = [pytest.mark.asyncio, pytest.mark.slow]
@@ -31,13 +29,6 @@ def _print_options() -> set[str]:
     (sub,) = [a for a in build_parser()._actions if getattr(a, "choices", None)
               and "print" in a.choices]
     return {o for a in sub.choices["print"]._actions for o in a.option_strings}
-
-
-def bored_block() -> trimesh.Trimesh:
-    """A 12 × 12 × 10 mm block with a horizontal bore R2.5 through it at mid-height."""
-    block = m3.Manifold.cube([12.0, 12.0, 10.0], True).translate([0.0, 0.0, 5.0])
-    bore = m3.Manifold.cylinder(14.0, 2.5, 2.5, 24, True).rotate([0.0, 90.0, 0.0])
-    return to_trimesh(block - bore.translate([0.0, 0.0, 5.0]))
 
 
 async def test_a_slice_over_air_fails_unless_the_job_allows_it(tmp_path):
