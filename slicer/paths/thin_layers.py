@@ -38,6 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 import trimesh
 
+from slicer.planes2d import TOL
+
 MARGIN = 0.8
 """A thinned layer takes this share of the height the rule holds its steepest face at: the
 bound is exact for a straight wall, and a curved one (a ball's underside between two
@@ -211,6 +213,8 @@ def capper(mesh: trimesh.Trimesh, thinning: Thinning, index: int | None = None,
 
 def on_plane(origin: np.ndarray, normal: np.ndarray,
              plane: tuple[np.ndarray, np.ndarray]) -> bool:
-    """Whether the plane (``origin``, unit ``normal``) is ``plane`` (point, unit normal)."""
+    """Whether the plane (``origin``, unit ``normal``) is ``plane`` (point, unit normal),
+    to ``TOL.same``: a march's first plane is its base itself."""
     across = abs(float((np.asarray(origin, dtype=float) - plane[0]) @ plane[1]))
-    return across < 1e-6 and float(np.asarray(normal, dtype=float) @ plane[1]) > 1.0 - 1e-9
+    return (across < TOL.same
+            and float(np.asarray(normal, dtype=float) @ plane[1]) > 1.0 - TOL.same)
