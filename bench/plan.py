@@ -2,6 +2,9 @@
 
 Run: ``.venv/bin/python bench/plan.py [--repeat N] [models ...]`` (target: the 50k-face pipe
 planned in ≤ 3 s, a small share of the 10 s STL → checked G-code budget of ``bench/slice.py``).
+``--hard pipe3_15 tee_low ...`` plans those of ``shared/models/hard`` made 50 000 faces instead;
+``--lean`` plans the root with leaning layers, as the closed loop's leaning tries do (its
+stage ``lean``: pricing every direction in every band, choosing, stacking the pieces).
 Each model is decomposed once, then planned N times (default 3); the fastest run is reported
 with its process CPU time next to the wall time (on a shared machine the wall time of a single
 run mostly measures the neighbours). The skeleton cache is cleared before every run.
@@ -20,14 +23,15 @@ from __future__ import annotations
 import argparse
 import contextlib
 import pickle
+from functools import partial
 from pathlib import Path
 
 import trimesh
-from harness import MODELS, best_of, check_models
+from harness import MODELS, best_of, check_models, hard_model
 
 from kinematics.machine import MachineGeometry
 from slicer.decompose import DecomposeSettings, Decomposition, decompose
-from slicer.paths import planner
+from slicer.paths import LEAN, planner
 from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.settings import ProcessSettings
@@ -37,15 +41,17 @@ try:  # as in a slice (slicer.pipeline.slice_model); a checkout before it has no
 except ImportError:
     small_pages = contextlib.nullcontext
 
-STAGES = ("sections", "skeleton", "layers", "zones", "toolpaths", "obstacles", "paths")
+STAGES = ("lean", "sections", "skeleton", "layers", "zones", "toolpaths", "obstacles",
+          "paths")
 
 
-def plan_once(dec: Decomposition) -> PrintPlan:
-    """One plan from cold caches (the skeleton and solid caches are cleared first)."""
+def plan_once(dec: Decomposition, lean: bool = False) -> PrintPlan:
+    """One plan from cold caches (the skeleton and solid caches are cleared first), the
+    root leaning (the closed loop's first leaning try) when ``lean``."""
     planner.clear_caches()
     with small_pages():
         return planner.plan_print(dec, ProcessSettings(), MachineGeometry(),
-                                  Printhead.default())
+                                  Printhead.default(), lean=LEAN if lean else None)
 
 
 def decomposition(name: str, mesh: trimesh.Trimesh, cache: Path | None) -> Decomposition:
@@ -69,15 +75,20 @@ def main() -> None:
                         help="reuse the decomposition pickled in DIR/MODEL.pkl (written there "
                         "the first time), so two versions of the planner (PYTHONPATH) are "
                         "timed on the same sub-parts")
+    parser.add_argument("--hard", nargs="+", default=[], metavar="NAME",
+                        help="models of shared/models/hard made 50 000 faces (instead of MODELS)")
+    parser.add_argument("--lean", action="store_true", help="the root's layers leaning")
     parser.add_argument("models", nargs="*", help=f"any of {', '.join(MODELS)} (default: all)")
     args = parser.parse_args()
-    names = check_models(parser, args.models)
+    names = [] if args.hard and not args.models else check_models(parser, args.models)
+    makers = {**{n: MODELS[n] for n in names},
+              **{n: partial(hard_model, n) for n in args.hard}}
     print(f"{'model':>10} {'faces':>7} {'parts':>5} {'layers':>6} {'paths':>6} "
           + " ".join(f"{k:>9}" for k in STAGES) + f" {'wall s':>7} {'cpu s':>6}")
-    for name in names:
-        mesh = MODELS[name]()
+    for name, make in makers.items():
+        mesh = make()
         dec = decomposition(name, mesh, args.decompositions)
-        plan, wall, cpu = best_of(lambda d=dec: plan_once(d), args.repeat)
+        plan, wall, cpu = best_of(lambda d=dec: plan_once(d, args.lean), args.repeat)
         layers = [la for sp in plan.subparts for la in sp.layers]
         paths = sum(len(la.paths) for la in layers)
         stages = " ".join(f"{plan.timings.get(k, 0.0):>9.3f}" for k in STAGES)

@@ -8,7 +8,9 @@ leaves every earlier piece under it, a deferred child prints right after its pie
 
 from __future__ import annotations
 
+import itertools
 import math
+from dataclasses import replace
 
 import manifold3d as m3
 import numpy as np
@@ -24,6 +26,8 @@ from slicer.paths.lean_costs import (
     LeanSettings,
     Stranded,
     _Faces,
+    _overhang,
+    _platform,
     hinge,
 )
 from slicer.planes2d import slicing_solid
@@ -303,3 +307,49 @@ def test_a_jump_prices_what_it_leaves_below_in_the_lower_pieces_last_direction(s
                 want[i, j] += cost
     assert np.allclose(got, want)
     assert got.max() > 0.0  # the random faces leave something somewhere
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_band_tables_are_the_faces_summed_one_by_one(seed: int) -> None:
+    """Brute force over faces and directions: a face costs its hinged area in the band where
+    its layer in ``d`` crosses the axis, and a jump's cut at any band after that one and up
+    to the face's own leaves it below (its ``stranded`` cost). The tables price only the
+    pairs that cost; the sum must be the same."""
+    rng = np.random.default_rng(seed)
+    grid = DirectionGrid.make(20.0, 4.0)
+    dirs = grid.world(np.eye(3))
+    faces = _faces(rng, 300)
+    faces = replace(faces, stranded=np.where(rng.random(300) < 0.5, faces.area, 0.0))
+    axis, nb, band = np.array([0.0, 0.0, 1.0]), 14, 2.0
+    over, penalty = _overhang(faces, dirs, grid.inside, nb, axis, LeanSettings(band=band))
+    want_over, want_penalty = np.zeros_like(over), np.zeros_like(penalty)
+    own = np.clip(np.floor(faces.height / band), 0, nb - 1).astype(int)
+    for f, (i, j) in itertools.product(range(300), zip(*np.nonzero(grid.inside), strict=True)):
+        d = dirs[i, j]
+        b = int(np.clip(np.floor((faces.centre[f] @ d) / (d @ axis) / band), 0, nb - 1))
+        want_over[b, i, j] += hinge(np.array(faces.normal[f] @ d), 44.0, 49.0) * faces.area[f]
+        want_penalty[b + 1:own[f] + 1, i, j] += faces.stranded[f]
+    assert np.allclose(over, want_over, rtol=1e-12, atol=1e-12)
+    assert np.allclose(penalty, want_penalty, rtol=1e-12, atol=1e-12)
+    assert over.max() > 0.0 and penalty.max() > 0.0
+    assert not over[:, ~grid.inside].any()  # directions off the grid's cap are not priced
+
+
+def test_a_direction_is_allowed_where_its_layer_keeps_the_head_over_the_platform() -> None:
+    """Direction by direction: a layer through the axis at the band's low point, tilted θ,
+    reaches down to the lowest height z where the part's extent R(z) ≥ (s − z) / tan θ;
+    the head reaches its lowest point below that; allowed when that stays at the platform's
+    clearance (upright always)."""
+    column = _problem(_rod_on_column(20.0))[0]
+    grid, head, nb = DirectionGrid.make(SMALL.max_tilt, SMALL.step_deg), Printhead.default(), 12
+    got = _platform(column, grid.world(column.frame), grid, nb, head, SMALL)
+    z, radius = column.profile
+    want = np.zeros_like(got)
+    for b, (i, j) in itertools.product(range(nb), np.ndindex(*grid.inside.shape)):
+        s, theta = (b + 0.25) * SMALL.band, math.radians(grid.tilt[i, j])
+        reach = (s - z) / max(math.tan(theta), 1e-9)
+        low = min(float(np.min(z[(radius >= reach) & (z <= s)], initial=np.inf)), s)
+        drop = head.lowest_point(np.zeros(3), grid.local[i, j])
+        want[b, i, j] = theta < 1e-9 or low + column.origin[2] + drop >= SMALL.clearance
+    assert np.array_equal(got, want)
+    assert want[0].any() and not want[0].all() and want[-1].sum() > want[0].sum()
