@@ -210,10 +210,13 @@ def _cheapest(costs: LeanCosts, grid: DirectionGrid, limits: np.ndarray,
         if costs.jump_ok[b].any():
             i0, j0 = (int(x) for x in np.unravel_index(int(np.argmin(acc)), acc.shape))
             left = costs.jump_penalty[b]
-            if costs.stranded is not None:
-                left = np.maximum(left, costs.stranded.penalty(b, (i0, j0)))
             jump = np.where(costs.jump_ok[b], acc[i0, j0] + settings.jump_cost + left,
                             np.inf)
+            if costs.stranded is not None and (jump < best).any():
+                # the stranded faces only add to ``left``: priced where a jump may still win
+                left = np.maximum(left, costs.stranded.penalty(b, (i0, j0)))
+                jump = np.where(costs.jump_ok[b], acc[i0, j0] + settings.jump_cost + left,
+                                np.inf)
             take = jump < best
             best = np.where(take, jump, best)
             arg[take] = (JUMP, JUMP)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
 import manifold3d as m3
 import numpy as np
@@ -353,3 +353,44 @@ def test_a_direction_is_allowed_where_its_layer_keeps_the_head_over_the_platform
         want[b, i, j] = theta < 1e-9 or low + column.origin[2] + drop >= SMALL.clearance
     assert np.array_equal(got, want)
     assert want[0].any() and not want[0].all() and want[-1].sum() > want[0].sum()
+
+
+@dataclass
+class _Left:
+    """Stands in for :class:`Stranded`: what a jump at band b leaves below it costs
+    ``cost[b]`` in every direction; the bands it was asked about are kept."""
+
+    cost: dict[int, float]
+    asked: list[int] = field(default_factory=list)
+
+    def penalty(self, b: int, cell: tuple[int, int]) -> np.ndarray:
+        self.asked.append(b)
+        return np.full(self.shape, self.cost.get(b, 0.0))
+
+    shape: tuple[int, int] = (0, 0)
+
+
+@pytest.mark.parametrize("left_at_5", [0.0, 1000.0])
+def test_what_a_jump_leaves_below_decides_it_where_the_jump_could_win(left_at_5: float
+                                                                     ) -> None:
+    """The stranded faces' price is asked for where a jump could still be the cheaper way
+    (it only adds to the jump's cost): left cheap, the jump comes at band 5, where upright
+    stops being free; left dear there, a band before or after. Where no jump can win (at
+    band 2 only upright may jump, and staying upright costs nothing), it is not asked
+    for."""
+    grid = DirectionGrid.make(SMALL.max_tilt, SMALL.step_deg)
+    nb, n = 10, grid.inside.shape[0]
+    over = np.full((nb, n, n), 50.0)
+    over[:5] = 0.0  # upright is free low down ...
+    over[5:, 1, n // 2] = 0.0  # ... then only a cell 19° off is
+    allowed = np.broadcast_to(grid.inside, (nb, n, n)).copy()
+    jump_ok = np.zeros_like(allowed)
+    jump_ok[4:7] = allowed[4:7]
+    jump_ok[2, grid.centre, grid.centre] = True
+    left = _Left({5: left_at_5}, shape=(n, n))
+    costs = LeanCosts(over, allowed, np.zeros_like(over), jump_ok, 0.0,
+                      stranded=left)  # type: ignore[arg-type]
+    cells, jumps, total = _cheapest(costs, grid, np.full(nb, 0.5), SMALL)
+    assert cells[-1] == (1, n // 2) and total < 10.0
+    assert jumps == [5] if left_at_5 == 0.0 else jumps in ([4], [6])
+    assert 5 in left.asked and 2 not in left.asked
