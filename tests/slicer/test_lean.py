@@ -123,13 +123,20 @@ def test_no_random_feasible_path_is_cheaper(seed: int) -> None:
         assert _path_cost(costs, grid, cells, [], SMALL) >= best - 1e-9
 
 
-def test_a_jump_is_taken_only_where_allowed_and_when_it_pays() -> None:
+def _free_then_tilted() -> tuple[DirectionGrid, np.ndarray, np.ndarray]:
+    """(grid, overhang, allowed) of 10 bands: upright free up to band 5, then only a cell
+    19° off."""
     grid = DirectionGrid.make(SMALL.max_tilt, SMALL.step_deg)
     nb, n = 10, grid.inside.shape[0]
     over = np.full((nb, n, n), 50.0)
-    over[:5] = 0.0  # upright is free low down ...
-    over[5:, 1, n // 2] = 0.0  # ... then only a cell 19° off is
-    allowed = np.broadcast_to(grid.inside, (nb, n, n)).copy()
+    over[:5] = 0.0
+    over[5:, 1, n // 2] = 0.0
+    return grid, over, np.broadcast_to(grid.inside, (nb, n, n)).copy()
+
+
+def test_a_jump_is_taken_only_where_allowed_and_when_it_pays() -> None:
+    grid, over, allowed = _free_then_tilted()
+    nb, n = over.shape[:2]
     jump_ok = np.zeros_like(allowed)
     jump_ok[4:6] = allowed[4:6]
     costs = LeanCosts(over, allowed, np.zeros_like(over), jump_ok, 0.0)
@@ -378,12 +385,8 @@ def test_what_a_jump_leaves_below_decides_it_where_the_jump_could_win(left_at_5:
     stops being free; left dear there, a band before or after. Where no jump can win (at
     band 2 only upright may jump, and staying upright costs nothing), it is not asked
     for."""
-    grid = DirectionGrid.make(SMALL.max_tilt, SMALL.step_deg)
-    nb, n = 10, grid.inside.shape[0]
-    over = np.full((nb, n, n), 50.0)
-    over[:5] = 0.0  # upright is free low down ...
-    over[5:, 1, n // 2] = 0.0  # ... then only a cell 19° off is
-    allowed = np.broadcast_to(grid.inside, (nb, n, n)).copy()
+    grid, over, allowed = _free_then_tilted()
+    nb, n = over.shape[:2]
     jump_ok = np.zeros_like(allowed)
     jump_ok[4:7] = allowed[4:7]
     jump_ok[2, grid.centre, grid.centre] = True
