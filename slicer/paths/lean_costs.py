@@ -373,7 +373,7 @@ def _costly(faces: _Faces, centre: np.ndarray, ndot: np.ndarray, along: np.ndarr
     """Overhang per band of ``m`` directions, (nb, m), from every face's ``centre · d`` and
     ``n · d`` (f, m), ``a · d`` (m,) and soft limit's sine ``lo`` (f,): the pairs past the
     soft limit only."""
-    rows, col = np.nonzero(-ndot > lo[:, None])
+    rows, col = np.nonzero(ndot < -lo[:, None])  # -n·d past the sine: no (f, m) negation
     w = hinge(ndot[rows, col], faces.soft[rows], faces.hard[rows]) * faces.area[rows]
     b = _band(centre[rows, col] / along[col], n_bands, band)
     return _summed(b, col, w, n_bands, len(along))
