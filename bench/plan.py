@@ -4,7 +4,8 @@ Run: ``.venv/bin/python bench/plan.py [--repeat N] [models ...]`` (target: the 5
 planned in ≤ 3 s, a small share of the 10 s STL → checked G-code budget of ``bench/slice.py``).
 ``--hard pipe3_15 tee_low ...`` plans those of ``shared/models/hard`` made 50 000 faces instead;
 ``--lean`` plans the root with leaning layers, as the closed loop's leaning tries do (its
-stage ``lean``: pricing every direction in every band, choosing, stacking the pieces).
+stage ``lean``: pricing every direction in every band, ``lean_price``, choosing the plan,
+``lean_solve``, as often as a refused cut makes it solve again, and stacking the pieces).
 Each model is decomposed once, then planned N times (default 3); the fastest run is reported
 with its process CPU time next to the wall time (on a shared machine the wall time of a single
 run mostly measures the neighbours). The skeleton cache is cleared before every run.
@@ -41,8 +42,8 @@ try:  # as in a slice (slicer.pipeline.slice_model); a checkout before it has no
 except ImportError:
     small_pages = contextlib.nullcontext
 
-STAGES = ("lean", "sections", "skeleton", "layers", "zones", "toolpaths", "obstacles",
-          "paths")
+STAGES = ("lean", "lean_price", "lean_solve", "sections", "skeleton", "layers", "zones",
+          "toolpaths", "obstacles", "paths")
 
 
 def plan_once(dec: Decomposition, lean: bool = False) -> PrintPlan:

@@ -380,6 +380,7 @@ def _plan(decomposition: Decomposition, settings: ProcessSettings, geometry: Mac
     leaned = _leaned(decomposition, settings, head, lean, hints, defer)
     decomposition = leaned.decomposition
     timer.lap("lean")
+    timer.laps.update(leaned.seconds)  # within "lean"
     subs = {s.index: s for s in decomposition.subparts}
     t = settings.layer_height
     threads = workers()

@@ -10,8 +10,10 @@ leans harder there.
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any, TypeVar
 
 import manifold3d as m3
 import numpy as np
@@ -24,6 +26,8 @@ from slicer.paths.lean import LeanPlan, LeanProblem, Turning, lean_problem, solv
 from slicer.paths.lean_costs import LeanSettings
 from slicer.planes2d import TOL
 from slicer.printhead import Printhead
+
+T = TypeVar("T")
 
 log = logging.getLogger(__name__)
 
@@ -91,6 +95,9 @@ class Leaned:
     decomposition: Decomposition
     plans: dict[int, LeanPlan] = field(default_factory=dict)
     original: dict[int, int] = field(default_factory=dict)
+    seconds: dict[str, float] = field(default_factory=dict)
+    """Wall seconds of pricing the candidates (``lean_price``) and of solving the plan, every
+    time it was solved (``lean_solve``)."""
 
     def child_of_root(self, index: int) -> int | None:
         """The original index of the root's child that sub-part ``index`` is printed on
@@ -139,6 +146,17 @@ def lean_upright(decomposition: Decomposition, solid: m3.Manifold, base_centre: 
     -------
     Leaned
     """
+    seconds: dict[str, float] = {}
+    leaned = _lean_upright(decomposition, solid, base_centre, turning, head, settings, hints,
+                           defer, seconds)
+    return replace(leaned, seconds=seconds)
+
+
+def _lean_upright(decomposition: Decomposition, solid: m3.Manifold, base_centre: BaseCentre,
+                  turning: Turning, head: Printhead, settings: LeanSettings | None,
+                  hints: LeanHints, defer: frozenset[int], seconds: dict[str, float]
+                  ) -> Leaned:
+    """:func:`lean_upright`, its stages timed into ``seconds``."""
     root = _root(decomposition)
     if settings is None or root is None:
         return Leaned(decomposition)
@@ -146,14 +164,14 @@ def lean_upright(decomposition: Decomposition, solid: m3.Manifold, base_centre: 
     origin = base_centre(root.mesh, np.array([0.0, 0.0, float(root.mesh.bounds[0][2])]),
                          np.array([0.0, 0.0, 1.0]))
     column = column_of(root, kids, solid, origin, np.eye(3), hints.weights(root.mesh))
-    problem = lean_problem(column, head, turning, settings)
+    problem = _timed(seconds, "lean_price", lean_problem, column, head, turning, settings)
     bases = [column.child_bases[i] for i, k in enumerate(kids) if k.index in defer]
     refused: set[int] = set()
     for _ in range(MAX_CUT_TRIES):
         forced = _forced(problem, bases, refused)
         if len(forced) < len(defer):
             return Leaned(decomposition)  # no cut above a deferred child's base
-        plan = solve(problem, frozenset(refused), forced)
+        plan = _timed(seconds, "lean_solve", solve, problem, frozenset(refused), forced)
         if not plan.leans:
             return Leaned(decomposition)
         pieces, bad = stack(column, plan)
@@ -163,11 +181,21 @@ def lean_upright(decomposition: Decomposition, solid: m3.Manifold, base_centre: 
     forced = _forced(problem, bases, refused)
     if len(forced) < len(defer):
         return Leaned(decomposition)
-    plan = solve(problem, frozenset(range(len(problem.limits))) - set(forced), forced)
+    plan = _timed(seconds, "lean_solve", solve, problem,
+                  frozenset(range(len(problem.limits))) - set(forced), forced)
     pieces, bad = stack(column, plan)
     if bad is not None or not plan.leans:
         return Leaned(decomposition)
     return _leaned(decomposition, root, pieces, plan, defer)
+
+
+def _timed(seconds: dict[str, float], name: str, fn: Callable[..., T], *args: Any) -> T:
+    """``fn(*args)``, its wall seconds added to ``seconds[name]``."""
+    t0 = time.perf_counter()
+    try:
+        return fn(*args)
+    finally:
+        seconds[name] = seconds.get(name, 0.0) + time.perf_counter() - t0
 
 
 def _forced(problem: LeanProblem, bases: list[np.ndarray], refused: set[int]

@@ -30,6 +30,7 @@ from slicer.paths.lean_costs import (
     _platform,
     hinge,
 )
+from slicer.paths.upright import lean_upright
 from slicer.planes2d import slicing_solid
 from slicer.printhead import Printhead
 
@@ -397,3 +398,22 @@ def test_what_a_jump_leaves_below_decides_it_where_the_jump_could_win(left_at_5:
     assert cells[-1] == (1, n // 2) and total < 10.0
     assert jumps == [5] if left_at_5 == 0.0 else jumps in ([4], [6])
     assert 5 in left.asked and 2 not in left.asked
+
+
+def test_the_lean_of_the_root_times_its_pricing_and_its_solving() -> None:
+    """The rod past the limit leans; the plan says how long pricing and solving took
+    (``hostctl slice``'s plan stages, ``bench/plan.py --lean``)."""
+    solid = _rod_on_column(20.0)
+    root = _subpart(solid)
+    dec = Decomposition(np.eye(4), [root], [0], float(solid.volume()), {}, 1, 1)
+
+    def centre(mesh, point: np.ndarray, normal: np.ndarray) -> np.ndarray:
+        return np.array([0.0, 0.0, float(point[2])])
+
+    leaned = lean_upright(dec, slicing_solid(root.mesh), centre, TURNING, Printhead.default(),
+                          SMALL)
+    assert leaned.plans and set(leaned.seconds) == {"lean_price", "lean_solve"}
+    assert all(s > 0.0 for s in leaned.seconds.values())
+    upright = lean_upright(dec, slicing_solid(root.mesh), centre, TURNING,
+                           Printhead.default(), None)
+    assert not upright.plans and upright.seconds == {}
