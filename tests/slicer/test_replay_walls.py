@@ -10,15 +10,24 @@ frame is told apart from one in the platform frame.
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 import pytest
 import trimesh
 
 from kinematics.machine import MachineGeometry
+from slicer import pipeline
 from slicer.advice import PRINT_OPTIONS, SLICE_OPTIONS, walls_message
 from slicer.mesh.samples import branched_pipe
-from slicer.pipeline import SliceResult, UnsupportedWallsError, slice_model
+from slicer.pipeline import (
+    OverhangPolicy,
+    SliceResult,
+    UnsupportedWallsError,
+    slice_model,
+    walls_verdict,
+)
 from slicer.printhead import Printhead
 from slicer.repair import ALTERNATIVES
 from slicer.replay.geometry import ModelIndex
@@ -51,16 +60,46 @@ def _slice(**kw: object) -> SliceResult:
     return slice_model(small_tee(), ProcessSettings(), GEO, Printhead.default(), **kw)
 
 
+@dataclass
+class _Verdicts:
+    """The tee sliced once with ``allow_overhang=True``, and the refusal of the same file."""
+
+    allowed: SliceResult
+    refused: UnsupportedWallsError
+
+
 @pytest.fixture(scope="module")
-def refused() -> UnsupportedWallsError:
+def verdicts() -> _Verdicts:
+    """One closed loop for both policies. :func:`slice_model` reads the overhang policy only
+    where it judges the try it keeps, by one call of :func:`walls_verdict` (the loop's own
+    tries are written unjudged); refused, that call raises out of :func:`slice_model` as it
+    is. So the refusal is that very call again, with the allowing policy turned back to the
+    default (refuse), on the arguments the allowed slice judged."""
+    calls: list[tuple[Any, ...]] = []
+
+    def judged(*args: Any) -> str | None:
+        calls.append(args)
+        return walls_verdict(*args)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(pipeline, "walls_verdict", judged)
+        allowed = _slice(allow_overhang=True, keep_plan=True)
+    (call,) = calls
+    rep, plan, seed, policy, thinner = call
+    assert policy == OverhangPolicy(allow=True)
     with pytest.raises(UnsupportedWallsError) as err:
-        _slice()
-    return err.value
+        walls_verdict(rep, plan, seed, replace(policy, allow=False), thinner)
+    return _Verdicts(allowed, err.value)
 
 
 @pytest.fixture(scope="module")
-def allowed() -> SliceResult:
-    return _slice(allow_overhang=True, keep_plan=True)
+def refused(verdicts: _Verdicts) -> UnsupportedWallsError:
+    return verdicts.refused
+
+
+@pytest.fixture(scope="module")
+def allowed(verdicts: _Verdicts) -> SliceResult:
+    return verdicts.allowed
 
 
 def _distance(points: np.ndarray, limit: float) -> np.ndarray:
