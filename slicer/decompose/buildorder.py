@@ -164,10 +164,8 @@ def revolve_misfit(part: Partition, axes: np.ndarray, faces: np.ndarray) -> np.n
     mean = np.stack([np.bincount(lab, weights=w * p[:, i], minlength=k)
                      for i in range(3)], axis=1) / tot[:, None]  # (k, 3)
     q = p - mean[lab]  # centred positions (f, 3)
-    lhs = np.zeros((k, 3, 3))
-    np.add.at(lhs, lab, w[:, None, None] * m[:, :, None] * m[:, None, :])
-    rhs = np.zeros((k, 3))
-    np.add.at(rhs, lab, (w * np.einsum("fi,fi->f", q, m))[:, None] * m)
+    lhs = sum_rows(lab, w[:, None, None] * m[:, :, None] * m[:, None, :], k)
+    rhs = sum_rows(lab, (w * np.einsum("fi,fi->f", q, m))[:, None] * m, k)
     scale = np.trace(lhs, axis1=1, axis2=2)[:, None, None] + 1e-12
     lhs = lhs + scale * (axes[:, :, None] * axes[:, None, :] + 1e-9 * np.eye(3))  # pins c
     # along the axis; the ridge keeps regions without side faces solvable
@@ -196,10 +194,32 @@ def _normal_covariance(part: Partition, mask: np.ndarray) -> np.ndarray:
     n, w, lab = part.mesh.face_normals, part.mesh.area_faces, part.labels
     s = mask.shape[1]
     outer = n[:, :, None] * n[:, None, :] * w[:, None, None]  # (f, 3, 3)
-    cov = np.zeros((part.count, s, 3, 3))
     f, c = np.nonzero(mask)
-    np.add.at(cov, (lab[f], c), outer[f])
-    return cov
+    return sum_rows(lab[f] * s + c, outer[f], part.count * s).reshape(part.count, s, 3, 3)
+
+
+def sum_rows(index: np.ndarray, values: np.ndarray, count: int) -> np.ndarray:
+    """Σ of the rows of ``values`` by ``index``: what ``np.add.at(out, index, values)`` adds
+    into zeros, bit for bit (both add each row in turn, in the order given), by one
+    ``np.bincount`` per column, several times faster.
+
+    Parameters
+    ----------
+    index : (f,) int
+        Row of the sum each row of ``values`` goes to, in [0, count).
+    values : (f, ...) float
+    count : int
+        Rows of the sum.
+
+    Returns
+    -------
+    (count, ...) float
+    """
+    flat = values.reshape(len(values), int(np.prod(values.shape[1:])))
+    out = np.empty((count, flat.shape[1]))
+    for j in range(flat.shape[1]):
+        out[:, j] = np.bincount(index, weights=flat[:, j], minlength=count)
+    return out.reshape((count, *values.shape[1:]))
 
 
 def _sweeps(vals: np.ndarray) -> np.ndarray:

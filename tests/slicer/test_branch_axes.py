@@ -19,7 +19,7 @@ from decompose_checks import check_decomposition, owners
 from shared_models import MODELS
 
 from kinematics.machine import MachineGeometry
-from slicer.decompose.buildorder import region_axes
+from slicer.decompose.buildorder import region_axes, sum_rows
 from slicer.decompose.decomposition import DecomposeSettings, decompose, nearest_reachable
 from slicer.decompose.partition import Partition
 from slicer.mesh.read import load_mesh
@@ -139,6 +139,21 @@ def test_a_capped_rod_has_its_axis_despite_the_caps():
     axes, tubular = region_axes(part)
     assert tubular[0]
     assert min(_angle(axes[0], axis), _angle(-axes[0], axis)) < 1.0
+
+
+@pytest.mark.parametrize("shape", [(), (3,), (3, 3)])
+@pytest.mark.parametrize("rows", [0, 1, 5000])
+def test_sum_rows_is_add_at_bit_for_bit(shape, rows):
+    """The region sums of the normals' covariance add as ``np.add.at`` did, to the last bit
+    (rows of the sum no index names stay zero)."""
+    rng = np.random.default_rng(rows)
+    index = rng.integers(0, 7, rows)
+    values = rng.normal(size=(rows, *shape)) * 10.0 ** rng.integers(-6, 6, (rows, *shape))
+    expected = np.zeros((9, *shape))
+    np.add.at(expected, index, values)
+    got = sum_rows(index, values, 9)
+    assert got.shape == expected.shape and np.array_equal(got, expected)
+    assert not got[7:].any()
 
 
 def test_nearest_reachable_clamps_the_tilt_and_keeps_the_azimuth():
