@@ -193,9 +193,13 @@ def _normal_covariance(part: Partition, mask: np.ndarray) -> np.ndarray:
     """
     n, w, lab = part.mesh.face_normals, part.mesh.area_faces, part.labels
     s = mask.shape[1]
-    outer = n[:, :, None] * n[:, None, :] * w[:, None, None]  # (f, 3, 3)
     f, c = np.nonzero(mask)
-    return sum_rows(lab[f] * s + c, outer[f], part.count * s).reshape(part.count, s, 3, 3)
+    index, nf, wf = lab[f] * s + c, n[f], w[f]
+    cov = np.empty((part.count * s, 3, 3))
+    for i, j in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)):  # symmetric: n_i n_j = n_j n_i
+        cov[:, i, j] = cov[:, j, i] = np.bincount(index, weights=nf[:, i] * nf[:, j] * wf,
+                                                  minlength=part.count * s)
+    return cov.reshape(part.count, s, 3, 3)
 
 
 def sum_rows(index: np.ndarray, values: np.ndarray, count: int) -> np.ndarray:

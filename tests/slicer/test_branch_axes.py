@@ -19,7 +19,7 @@ from decompose_checks import check_decomposition, owners
 from shared_models import MODELS
 
 from kinematics.machine import MachineGeometry
-from slicer.decompose.buildorder import region_axes, sum_rows
+from slicer.decompose.buildorder import _normal_covariance, region_axes, sum_rows
 from slicer.decompose.decomposition import DecomposeSettings, decompose, nearest_reachable
 from slicer.decompose.partition import Partition
 from slicer.mesh.read import load_mesh
@@ -154,6 +154,21 @@ def test_sum_rows_is_add_at_bit_for_bit(shape, rows):
     got = sum_rows(index, values, 9)
     assert got.shape == expected.shape and np.array_equal(got, expected)
     assert not got[7:].any()
+
+
+def test_the_normal_covariance_is_that_of_the_outer_products_added_one_by_one():
+    """Σ area · n nᵀ per region and mask column, to the last bit of the products summed by
+    ``np.add.at`` in face order."""
+    mesh = trimesh.creation.icosphere(3)
+    rng = np.random.default_rng(5)
+    part = Partition(mesh, rng.integers(0, 6, len(mesh.faces)), 6)
+    mask = rng.random((len(mesh.faces), 3)) < 0.6
+    n, w = mesh.face_normals, mesh.area_faces
+    outer = n[:, :, None] * n[:, None, :] * w[:, None, None]
+    f, c = np.nonzero(mask)
+    expected = np.zeros((6, 3, 3, 3))
+    np.add.at(expected, (part.labels[f], c), outer[f])
+    assert np.array_equal(_normal_covariance(part, mask), expected)
 
 
 def test_nearest_reachable_clamps_the_tilt_and_keeps_the_azimuth():
