@@ -300,7 +300,8 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     tried: list[str] = []
     results: list[Decomposition] = []
     first_error: DecompositionError | None = None
-    plan = list(attempt_plan(mesh, settings))
+    work = analysis_mesh(mesh)  # every attempt partitions the same refined mesh
+    plan = list(attempt_plan(mesh, settings, work))
     finer = plan[-1] if len(plan) > 2 and plan[-1][1] > plan[1][1] else None
     usual = [p for p in plan if p != finer]
     # the finer retry last of all: only where no usual attempt, nor its three-way cut, is
@@ -311,7 +312,7 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     for seed, k, three_way in order:
         how = " three-way" if three_way else ""
         try:
-            dec = _attempt(mesh, settings, seed, k, machine, head, clock, three_way)
+            dec = _attempt(mesh, work, settings, seed, k, machine, head, clock, three_way)
         except RootRegionError:
             raise
         except DecompositionError as exc:
@@ -362,8 +363,8 @@ def _kept(ranked: list[Decomposition], finer: set[int], area: float
     return best, others
 
 
-def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings
-                 ) -> Iterator[tuple[int, int]]:
+def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings,
+                 analysed: trimesh.Trimesh | None = None) -> Iterator[tuple[int, int]]:
     """The (seed, K) attempts of :func:`decompose`, in order; K = 0 is automatic.
 
     First the configured ones. Then ``TOL.retry_seeds`` more, derived from the configured
@@ -377,12 +378,13 @@ def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings
     few for a ball with arms spread in three directions (the sweep's ball31, K₀ 3: every
     coarser attempt kept an arm in the ball's root, 253–385 mm² over air; K 4–6 cut all
     three off in 11 of 12 seeds); :func:`_kept` says when it is kept. A fixed ``--root``
-    names a region of the configured seed's partition, so it gets no retries.
+    names a region of the configured seed's partition, so it gets no retries. ``analysed``
+    is ``analysis_mesh(mesh)`` when the caller has it already.
     """
     yield settings.seed, settings.parts
     if settings.root is not None:
         return
-    k0 = settings.parts or auto_k(analysis_mesh(mesh))
+    k0 = settings.parts or auto_k(analysis_mesh(mesh) if analysed is None else analysed)
     for i in range(1, TOL.retry_seeds + 1):
         seed = (settings.seed + i * 1_000_003) % 2**31
         yield seed, settings.parts or max(K_MIN, round(k0 / i))
@@ -390,12 +392,13 @@ def attempt_plan(mesh: trimesh.Trimesh, settings: DecomposeSettings
         yield (settings.seed + (TOL.retry_seeds + 1) * 1_000_003) % 2**31, min(K_MAX, 2 * k0)
 
 
-def _attempt(mesh: trimesh.Trimesh, settings: DecomposeSettings, seed: int, k: int,
-             machine: MachineGeometry, head: Printhead, clock: _Clock,
+def _attempt(mesh: trimesh.Trimesh, analysed: trimesh.Trimesh, settings: DecomposeSettings,
+             seed: int, k: int, machine: MachineGeometry, head: Printhead, clock: _Clock,
              three_way: bool = False) -> Decomposition:
-    """One decomposition with ``seed`` and K = ``k`` (0: automatic), overhang measured;
-    ``three_way``: stranded regions may be cut in three (:func:`group_regions_refined`)."""
-    part = coarse_partition(mesh, k or None, seed)
+    """One decomposition with ``seed`` and K = ``k`` (0: automatic), overhang measured, of
+    ``mesh`` partitioned on ``analysed`` (its :func:`analysis_mesh`); ``three_way``: stranded
+    regions may be cut in three (:func:`group_regions_refined`)."""
+    part = coarse_partition(mesh, k or None, seed, analysed)
     clock.lap("partition")
     root = root_region(part) if settings.root is None else settings.root
     if not 0 <= root < part.count:

@@ -267,7 +267,8 @@ def split_region_k(part: Partition, region: int, seed: int, k: int,
     return Partition(m, labels, part.k_requested)
 
 
-def coarse_partition(mesh: trimesh.Trimesh, k: int | None, seed: int) -> Partition:
+def coarse_partition(mesh: trimesh.Trimesh, k: int | None, seed: int,
+                     analysed: trimesh.Trimesh | None = None) -> Partition:
     """K-means coarse partition of ``mesh`` (paper 2.2.1) with connectivity clean-up.
 
     Parameters
@@ -277,8 +278,11 @@ def coarse_partition(mesh: trimesh.Trimesh, k: int | None, seed: int) -> Partiti
     k : int or None
         Number of clusters; ``None`` or 0 chooses it with :func:`auto_k`.
     seed : int
+    analysed : trimesh.Trimesh, optional
+        ``analysis_mesh(mesh)``, when the caller has it already (the attempts of one
+        decomposition share it; it is not modified).
     """
-    work = analysis_mesh(mesh)
+    work = analysis_mesh(mesh) if analysed is None else analysed
     k_used = auto_k(work) if not k else int(k)
     labels = kmeans_labels(work.triangles_center, work.area_faces, k_used, seed)
     labels = merge_small(work, split_disconnected(work, labels))

@@ -21,6 +21,7 @@ from kinematics.machine import MachineGeometry
 from slicer.decompose.decomposition import DecomposeSettings, decompose
 from slicer.decompose.partition import (
     MIN_REGION_SHARE,
+    analysis_mesh,
     coarse_partition,
     split_disconnected,
     split_region_k,
@@ -37,6 +38,20 @@ def _read(mesh: trimesh.Trimesh, folder, name: str) -> trimesh.Trimesh:
     path = folder / f"{name}.stl"
     mesh.export(path)
     return load_mesh(path)[0]
+
+
+def test_the_attempts_share_one_analysis_mesh_as_if_each_refined_its_own() -> None:
+    """decompose refines the part once for all its attempts: the refined mesh is the same
+    each time, each partition on the shared one is the one it makes for itself, and
+    partitioning leaves it as it was."""
+    mesh, _ = load_mesh(MODELS / "pipe3.stl")
+    work = analysis_mesh(mesh)
+    vertices, faces = work.vertices.copy(), work.faces.copy()
+    for seed in (0, 1):
+        shared, own = coarse_partition(mesh, None, seed, work), coarse_partition(mesh, None, seed)
+        assert shared.mesh is work and np.array_equal(shared.labels, own.labels)
+        assert np.array_equal(own.mesh.vertices, vertices)
+    assert np.array_equal(work.vertices, vertices) and np.array_equal(work.faces, faces)
 
 
 @pytest.mark.parametrize("model", ["pipe3.stl", "hard/arms3.stl", "hard/tee_low.stl"])
