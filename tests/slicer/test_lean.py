@@ -369,13 +369,12 @@ class _Left:
     ``cost[b]`` in every direction; the bands it was asked about are kept."""
 
     cost: dict[int, float]
+    shape: tuple[int, int]
     asked: list[int] = field(default_factory=list)
 
     def penalty(self, b: int, cell: tuple[int, int]) -> np.ndarray:
         self.asked.append(b)
         return np.full(self.shape, self.cost.get(b, 0.0))
-
-    shape: tuple[int, int] = (0, 0)
 
 
 @pytest.mark.parametrize("left_at_5", [0.0, 1000.0])
@@ -391,7 +390,7 @@ def test_what_a_jump_leaves_below_decides_it_where_the_jump_could_win(left_at_5:
     jump_ok = np.zeros_like(allowed)
     jump_ok[4:7] = allowed[4:7]
     jump_ok[2, grid.centre, grid.centre] = True
-    left = _Left({5: left_at_5}, shape=(n, n))
+    left = _Left({5: left_at_5}, (n, n))
     costs = LeanCosts(over, allowed, np.zeros_like(over), jump_ok, 0.0,
                       stranded=left)  # type: ignore[arg-type]
     cells, jumps, total = _cheapest(costs, grid, np.full(nb, 0.5), SMALL)
