@@ -11,11 +11,15 @@ pieces in build order. It never returns a decomposition that breaks a constraint
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import logging
+import multiprocessing
+import os
 import time
 from collections.abc import Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -26,6 +30,8 @@ from scipy.spatial import cKDTree
 
 from kinematics.machine import MachineGeometry
 from kinematics.orient import nearest_reachable_direction
+from slicer.cores import die_with_parent
+from slicer.decompose.ahead import in_order
 from slicer.decompose.buildorder import MERGE_ANGLE, Groups, group_regions_refined, root_region
 from slicer.decompose.overhang import Overhang, decomposition_overhang
 from slicer.decompose.partition import (
@@ -86,6 +92,9 @@ class RootRegionError(DecompositionError):
         super().__init__(f"root region {root} does not exist: valid regions are "
                          f"0..{regions - 1} (see the labels in preview.png)")
         self.root, self.regions = root, regions
+
+    def __reduce__(self) -> tuple[type[RootRegionError], tuple[int, int]]:
+        return RootRegionError, (self.root, self.regions)  # raised in a worker process too
 
 
 RUNNERS_UP = 2
@@ -296,36 +305,8 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
         raise DecompositionError(bodies)
     clock.lap("load")
     area = float(mesh.area)
-    retry_above = max(TOL.overhang_retry_abs, TOL.overhang_retry_rel * area)
-    tried: list[str] = []
-    results: list[Decomposition] = []
-    first_error: DecompositionError | None = None
-    work = analysis_mesh(mesh)  # every attempt partitions the same refined mesh
-    plan = list(attempt_plan(mesh, settings, work))
-    finer = plan[-1] if len(plan) > 2 and plan[-1][1] > plan[1][1] else None
-    usual = [p for p in plan if p != finer]
-    # the finer retry last of all: only where no usual attempt, nor its three-way cut, is
-    # within the retry threshold
-    order = [(s, k, False) for s, k in usual] + [(s, k, True) for s, k in usual]
-    order += [] if finer is None else [(*finer, False), (*finer, True)]
-    finer_ids: set[int] = set()
-    for seed, k, three_way in order:
-        how = " three-way" if three_way else ""
-        try:
-            dec = _attempt(mesh, work, settings, seed, k, machine, head, clock, three_way)
-        except RootRegionError:
-            raise
-        except DecompositionError as exc:
-            tried.append(f"seed {seed} k={k or 'auto'}{how}: refused: {exc}")
-            first_error = first_error or exc
-            continue
-        tried.append(f"seed {seed} k={dec.k}{how}: {len(dec.subparts)} sub-parts, overhang "
-                     f"{dec.overhang_area:.1f} mm²")
-        results.append(dec)
-        if (seed, k) == finer:
-            finer_ids.add(id(dec))
-        if dec.overhang_area <= retry_above:
-            break
+    job = _Job(mesh, analysis_mesh(mesh), settings, machine, head)  # every attempt's mesh
+    tried, results, finer_ids, first_error = _attempts(job, area, clock)
     if not results:
         assert first_error is not None
         more = len(tried) - 1
@@ -343,6 +324,102 @@ def decompose(mesh: trimesh.Trimesh, settings: DecomposeSettings, machine: Machi
     _refuse_overhang(best, area)
     log.info("decomposition: %s", best.summary())
     return best
+
+
+@dataclass(frozen=True)
+class _Job:
+    """What every attempt of one decomposition shares (a worker gets it once)."""
+
+    mesh: trimesh.Trimesh
+    analysed: trimesh.Trimesh  # analysis_mesh(mesh)
+    settings: DecomposeSettings
+    machine: MachineGeometry
+    head: Printhead
+
+
+def _attempts(job: _Job, area: float, clock: _Clock
+              ) -> tuple[list[str], list[Decomposition], set[int], DecompositionError | None]:
+    """The attempts of :func:`decompose` in order (:func:`attempt_plan`, then the three-way
+    cuts, then the finer retry), until one is within the retry threshold; later ones may
+    be computed ahead by a worker process (:mod:`slicer.decompose.ahead`).
+
+    Returns the line per attempt, the valid results in order, the ids of the finer retry's
+    and the first refusal."""
+    retry_above = max(TOL.overhang_retry_abs, TOL.overhang_retry_rel * area)
+    order, finer = _attempt_order(list(attempt_plan(job.mesh, job.settings, job.analysed)))
+    tried: list[str] = []
+    results: list[Decomposition] = []
+    finer_ids: set[int] = set()
+    first_error: DecompositionError | None = None
+    outcomes = in_order(len(order), lambda i: _tried(job, *order[i], clock),
+                        functools.partial(_spawn, job),
+                        lambda pool, i: pool.submit(_tried_there, *order[i]))
+    with contextlib.closing(outcomes):
+        for (seed, k, three_way), dec in zip(order, outcomes, strict=False):
+            clock.lap("waited")  # for a worker's attempt; ~0 otherwise
+            how = " three-way" if three_way else ""
+            if isinstance(dec, DecompositionError):
+                tried.append(f"seed {seed} k={k or 'auto'}{how}: refused: {dec}")
+                first_error = first_error or dec
+                continue
+            tried.append(f"seed {seed} k={dec.k}{how}: {len(dec.subparts)} sub-parts, "
+                         f"overhang {dec.overhang_area:.1f} mm²")
+            results.append(dec)
+            if (seed, k) == finer:
+                finer_ids.add(id(dec))
+            if dec.overhang_area <= retry_above:
+                break
+    return tried, results, finer_ids, first_error
+
+
+def _attempt_order(plan: list[tuple[int, int]]
+                   ) -> tuple[list[tuple[int, int, bool]], tuple[int, int] | None]:
+    """(seed, K, three-way) of every attempt, in order, and the finer retry's (seed, K) or
+    None: the plan's usual attempts, then the same three-way, then the finer retry (the
+    last of the plan when its K is larger than the first retry's) both ways, only where no
+    usual attempt, nor its three-way cut, is within the retry threshold."""
+    finer = plan[-1] if len(plan) > 2 and plan[-1][1] > plan[1][1] else None
+    usual = [p for p in plan if p != finer]
+    order = [(s, k, False) for s, k in usual] + [(s, k, True) for s, k in usual]
+    return order + ([] if finer is None else [(*finer, False), (*finer, True)]), finer
+
+
+def _tried(job: _Job, seed: int, k: int, three_way: bool, clock: _Clock
+           ) -> Decomposition | DecompositionError:
+    """:func:`_attempt`, a refusal returned (but a bad root, which raises)."""
+    try:
+        return _attempt(job.mesh, job.analysed, job.settings, seed, k, job.machine, job.head,
+                        clock, three_way)
+    except RootRegionError:
+        raise
+    except DecompositionError as exc:
+        return exc
+
+
+_JOB: _Job | None = None  # in a worker process (:func:`_spawn`): the attempts' job
+
+
+def _spawn(job: _Job) -> ProcessPoolExecutor:
+    """A pool of one spawned worker for ``job``'s attempts (:func:`_tried_there`).
+
+    The job goes as the worker's first task, not as its initializer's argument: those are
+    written to the new process by the starting thread, which would wait while the worker
+    imports the slicer; a task is written by the pool's own thread."""
+    pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=die_with_parent, initargs=(os.getpid(),))
+    pool.submit(_take_job, job)
+    return pool
+
+
+def _take_job(job: _Job) -> None:
+    global _JOB
+    _JOB = job
+
+
+def _tried_there(seed: int, k: int, three_way: bool) -> Decomposition | DecompositionError:
+    """:func:`_tried` in the worker process, on the job it was started with."""
+    assert _JOB is not None, "not a decomposition worker"
+    return _tried(_JOB, seed, k, three_way, _Clock())
 
 
 def _kept(ranked: list[Decomposition], finer: set[int], area: float

@@ -20,18 +20,17 @@ from __future__ import annotations
 
 import bisect
 import contextlib
-import ctypes
 import functools
 import itertools
 import multiprocessing
 import os
-import signal
 from collections.abc import Callable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Any
 
+from slicer.cores import die_with_parent
 from slicer.paths.interfaces import ChildBase
 from slicer.paths.layers import LayerPlane
 from slicer.paths.subpart_paths import (
@@ -49,7 +48,6 @@ from slicer.settings import ProcessSettings
 
 CHUNK_MIN_LAYERS = 20  # a sub-part with this many layers has stages 1-2 in processes
 CHUNKS_PER_PROCESS = 3  # chunks of layers per worker process: evens out unequal chunks
-PR_SET_PDEATHSIG = 1  # prctl(2): a signal for this process when its parent dies
 
 
 @contextlib.contextmanager
@@ -76,16 +74,6 @@ def layer_processes(longest: int, min_layers: int = CHUNK_MIN_LAYERS
         procs.shutdown(wait=True, cancel_futures=True)
         raise
     procs.shutdown(wait=True)
-
-
-def die_with_parent(parent: int) -> None:
-    """Worker initializer: on Linux the kernel kills this worker when the process that
-    started it dies (a slicer killed for memory, or with its daemon, leaves no orphans
-    waiting for work forever)."""
-    with contextlib.suppress(OSError, AttributeError):
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-    if os.getppid() != parent:  # it died before the request took effect
-        os._exit(1)
 
 
 def _processes() -> int:

@@ -28,7 +28,6 @@ summed over tasks: on two cores they add up to more than the wall time.
 
 from __future__ import annotations
 
-import os
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Executor, Future, ThreadPoolExecutor
@@ -39,6 +38,7 @@ import numpy as np
 import shapely
 from shapely.geometry.base import BaseGeometry
 
+from slicer.cores import free_cores
 from slicer.paths.interfaces import ChildBase, layer_interface
 from slicer.paths.layers import LayerPlane, local_thickness
 from slicer.paths.toolpaths import FillSpec, Path2D, Shell, fill_paths, layer_paths, shell
@@ -74,9 +74,7 @@ def workers() -> int:
     """Threads for the per-layer polygon work: one per core not busy with other work (by the
     1-min load average, less the one thread of this slice), at most :data:`MAX_WORKERS`;
     1 means inline. On a busy machine two threads only fight for the GIL and one core."""
-    cores = os.cpu_count() or 1
-    busy = max(0.0, os.getloadavg()[0] - 1.0) if hasattr(os, "getloadavg") else 0.0
-    return max(1, min(MAX_WORKERS, int(cores - busy + 0.5)))
+    return min(MAX_WORKERS, free_cores())
 
 
 def pool(threads: int) -> Executor:

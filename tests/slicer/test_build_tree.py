@@ -5,6 +5,7 @@ the same sub-parts are known to be the same (the closed loop tries them once).""
 from __future__ import annotations
 
 import copy
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -12,6 +13,7 @@ import pytest
 import trimesh
 from decompose_checks import check_decomposition
 
+import slicer.decompose.ahead as ahead
 import slicer.decompose.decomposition as decomposition
 from kinematics.machine import MachineGeometry
 from slicer import repair
@@ -81,6 +83,7 @@ def test_an_arm_hung_on_a_sibling_arm_is_printed_on_the_junction(
 def test_without_the_junction_the_arms_tree_is_refused_naming_a_boundary(
         tree: trimesh.Trimesh, tree_root: int, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(decomposition, "_touching_ancestor", lambda groups, g: None)
+    monkeypatch.setattr(ahead, "AHEAD_AFTER", math.inf)  # a worker would not see the patch
     with pytest.raises(DecompositionError, match="boundary between sub-part 1 and sub-part"):
         decompose(tree, DecomposeSettings(root=tree_root), MACHINE, HEAD)
 

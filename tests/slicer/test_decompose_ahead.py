@@ -1,0 +1,162 @@
+"""A decomposition's attempts shared with a spawned worker (:mod:`slicer.decompose.ahead`):
+the outcomes in order whoever computed them, the worker gone when the reader stops, a dead
+worker's attempts computed here, no worker where it cannot pay; and a decomposition the
+same with the worker as without it."""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import pickle
+from collections.abc import Callable, Generator
+from concurrent.futures import Executor, Future, ProcessPoolExecutor
+
+import pytest
+import trimesh
+from ahead_tasks import die, square, square_then_hang
+
+import slicer.decompose.ahead as ahead
+import slicer.decompose.decomposition as decomposition
+from kinematics.machine import MachineGeometry
+from slicer.decompose import DecomposeSettings, RootRegionError, decompose
+from slicer.mesh.hard_samples import hard_variant
+from slicer.printhead import Printhead
+
+HEAD, MACHINE = Printhead.default(), MachineGeometry()
+Task = Callable[[int], tuple[int, int]]
+
+
+class Pools:
+    """Starts spawned pools of one worker for :func:`ahead.in_order` and keeps them."""
+
+    def __init__(self) -> None:
+        self.pools: list[ProcessPoolExecutor] = []
+        self.workers: list[multiprocessing.process.BaseProcess] = []
+
+    def start(self) -> Executor:
+        pool = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        self.pools.append(pool)
+        return pool
+
+    def there(self, task: Task) -> Callable[[Executor, int], Future[tuple[int, int]]]:
+        def submit(pool: Executor, i: int) -> Future[tuple[int, int]]:
+            fut = pool.submit(task, i)
+            self.workers += list(pool._processes.values())  # type: ignore[attr-defined]
+            return fut
+        return submit
+
+
+@pytest.fixture
+def eager(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A worker for any attempt after the first, on any machine."""
+    monkeypatch.setattr(ahead, "AHEAD_AFTER", 0.0)
+    monkeypatch.setattr(ahead, "free_cores", lambda: 2)
+
+
+def _run(count: int, pools: Pools, task: Task, here: Task = square
+         ) -> Generator[tuple[int, int], None, None]:
+    return ahead.in_order(count, here, pools.start, pools.there(task))
+
+
+@pytest.mark.timeout(120)
+def test_the_outcomes_come_in_order_the_later_ones_partly_from_the_worker(eager: None
+                                                                            ) -> None:
+    pools = Pools()
+    got = list(_run(7, pools, square))
+    assert [v for v, _ in got] == [i * i for i in range(7)]
+    assert got[0][1] == os.getpid()  # the first attempt is always computed here
+    assert got[1][1] != os.getpid()  # the worker is given the next two at once
+    assert len(pools.pools) == 1
+    assert pools.workers and not any(w.is_alive() for w in pools.workers)
+
+
+@pytest.mark.timeout(120)
+def test_a_reader_that_stops_early_has_the_worker_killed(eager: None) -> None:
+    """The worker is busy with attempt 2 forever: the reader takes 0 and 1 and stops."""
+    pools = Pools()
+    outcomes = _run(6, pools, square_then_hang)
+    assert [next(outcomes)[0], next(outcomes)[0]] == [0, 1]
+    assert any(w.is_alive() for w in pools.workers)
+    outcomes.close()
+    assert pools.workers and not any(w.is_alive() for w in pools.workers)
+
+
+@pytest.mark.timeout(120)
+def test_an_error_here_ends_the_outcomes_and_the_worker(eager: None) -> None:
+    def failing(i: int) -> tuple[int, int]:
+        if i == 3:
+            raise ValueError("attempt 3 failed")
+        return square(i)
+
+    pools = Pools()
+    with pytest.raises(ValueError, match="attempt 3"):
+        list(_run(6, pools, square_then_hang, failing))
+    assert pools.workers and not any(w.is_alive() for w in pools.workers)
+
+
+@pytest.mark.timeout(120)
+def test_a_dead_workers_attempts_are_computed_here(eager: None) -> None:
+    pools = Pools()
+    got = list(_run(5, pools, die))
+    assert got == [(i * i, os.getpid()) for i in range(5)]
+    assert len(pools.pools) == 1  # no second worker after the first one died
+
+
+@pytest.mark.parametrize("why", ["the first attempt was quick", "no core is free"])
+def test_no_worker_is_started_where_it_cannot_pay(why: str,
+                                                  monkeypatch: pytest.MonkeyPatch) -> None:
+    if why == "no core is free":
+        monkeypatch.setattr(ahead, "AHEAD_AFTER", 0.0)
+        monkeypatch.setattr(ahead, "free_cores", lambda: 1)
+    else:
+        monkeypatch.setattr(ahead, "AHEAD_AFTER", 3600.0)
+        monkeypatch.setattr(ahead, "free_cores", lambda: 2)
+    pools = Pools()
+    assert list(_run(5, pools, square)) == [(i * i, os.getpid()) for i in range(5)]
+    assert pools.pools == []
+
+
+def test_a_bad_root_raised_in_a_worker_reaches_the_caller_whole() -> None:
+    err = pickle.loads(pickle.dumps(RootRegionError(7, 4)))
+    assert isinstance(err, RootRegionError) and (err.root, err.regions) == (7, 4)
+    assert "0..3" in str(err)
+
+
+@pytest.fixture(scope="module")
+def ball() -> trimesh.Trimesh:
+    """ball31 of the sweep: every usual attempt and its three-way cut, then the finer
+    retry (:func:`~slicer.decompose.decomposition.attempt_plan`)."""
+    return hard_variant(31).mesh()
+
+
+def _decomposed(mesh: trimesh.Trimesh, monkeypatch: pytest.MonkeyPatch, after: float
+                ) -> tuple[decomposition.Decomposition, int]:
+    """``mesh`` decomposed with attempts shared after ``after`` s; and workers started."""
+    started: list[ProcessPoolExecutor] = []
+    spawn = decomposition._spawn
+
+    def spawned(job: decomposition._Job) -> ProcessPoolExecutor:
+        started.append(spawn(job))
+        return started[-1]
+
+    with monkeypatch.context() as patch:
+        patch.setattr(ahead, "AHEAD_AFTER", after)
+        patch.setattr(ahead, "free_cores", lambda: 2)
+        patch.setattr(decomposition, "_spawn", spawned)
+        dec = decompose(mesh, DecomposeSettings(), MACHINE, HEAD)
+    return dec, len(started)
+
+
+@pytest.mark.timeout(240)
+def test_a_decomposition_is_the_same_with_a_worker_as_without(
+        ball: trimesh.Trimesh, monkeypatch: pytest.MonkeyPatch) -> None:
+    alone, none = _decomposed(ball, monkeypatch, 3600.0)
+    shared, one = _decomposed(ball, monkeypatch, 0.0)
+    assert (none, one) == (0, 1)
+    assert len(alone.attempts) > 3  # attempts after the first were shared
+    assert shared.attempts == alone.attempts
+    assert (shared.seed, shared.k) == (alone.seed, alone.k)
+    assert shared.signature() == alone.signature()
+    assert [d.signature() for d in shared.runners_up] == \
+        [d.signature() for d in alone.runners_up]
+    assert [o.area for o in shared.overhang] == [o.area for o in alone.overhang]
