@@ -1,15 +1,17 @@
 """Two versions of the slicer compared on the same cold slices, run alternately.
 
 Run: ``.venv/bin/python bench/ab_slice.py --base CHECKOUT [--rounds 8] [--model pipe3-50k]
-[--height 0.2]``, where CHECKOUT is another version of this repository (e.g. made by
-``git worktree add /tmp/base <commit>``). Each round slices the model once with the base
-and once with this checkout (STL to checked G-code, as ``hostctl slice`` does, caches
-cleared), each in a fresh process with that checkout first on ``PYTHONPATH``. On a shared VM
-the speed drifts by a fifth within minutes, so only alternation compares two versions; the
-kernel's steal time of each run is printed to tell the slow spells. Printed per run: wall,
-CPU (workers included), the stages, steal, the peak RSS of the slicing process (``rss``, MiB,
-its worker processes not included) and an MD5 of the G-code (same MD5: same output);
-then the mean and median of each figure per version. Without ``--base`` it says so and exits.
+[--height 0.2]``, where CHECKOUT is another version of this repository (e.g. made by ``git
+worktree add /tmp/base <commit>``); ``--model h:NAME`` takes ``shared/models/hard/NAME.stl``
+made 50 000 faces, as ``bench/cura_compare.py`` does. Each round slices the model once with
+the base and once with this checkout (STL to checked G-code, as ``hostctl slice`` does,
+caches cleared), each in a fresh process with that checkout first on ``PYTHONPATH``. On a
+shared VM the speed drifts by a fifth within minutes, so only alternation compares two
+versions; the kernel's steal time of each run is printed to tell the slow spells. Printed
+per run: wall, CPU (workers included), the stages, steal, the peak RSS of the slicing
+process (``rss``, MiB, its worker processes not included) and an MD5 of the G-code (same
+MD5: same output); then the mean and median of each figure per version. Without ``--base``
+it says so and exits.
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ def _steal_s() -> float:
 
 def one(model: str, height: float) -> dict[str, Any]:
     """One cold slice with the slicer found first on the path: its figures."""
-    from harness import MODELS, cpu_seconds
+    from harness import MODELS, cpu_seconds, hard_model
 
     from kinematics.machine import MachineGeometry
     from slicer.pipeline import slice_model
@@ -53,7 +55,7 @@ def one(model: str, height: float) -> dict[str, Any]:
     except ImportError:  # a checkout from before the slicer's sub-packages
         from slicer import planner
 
-    mesh = MODELS[model]()
+    mesh = hard_model(model[2:]) if model.startswith("h:") else MODELS[model]()
     planner.clear_caches()
     steal, cpu, wall = _steal_s(), cpu_seconds(), time.perf_counter()
     res = slice_model(mesh, ProcessSettings(layer_height=height), MachineGeometry(),
@@ -84,7 +86,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--base", type=Path, help="the other checkout")
     parser.add_argument("--rounds", type=int, default=8)
-    parser.add_argument("--model", default="pipe3-50k")
+    parser.add_argument("--model", default="pipe3-50k",
+                        help="a bench model, or h:NAME for shared/models/hard/NAME.stl made "
+                             "50 000 faces")
     parser.add_argument("--height", type=float, default=0.2)
     parser.add_argument("--one", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()

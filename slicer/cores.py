@@ -1,5 +1,6 @@
 """The slicer's share of the machine's cores: how many are free for its worker threads and
-processes, and worker processes that end with it.
+processes, how busy other processes kept them meanwhile, and worker processes that end
+with it.
 
 A worker waiting for work on a pool's queue would outlive a slicer killed for its memory, or
 with its daemon. :func:`die_with_parent`, run as a pool's initializer, asks the kernel to kill
@@ -12,8 +13,12 @@ import contextlib
 import ctypes
 import os
 import signal
+import time
+from dataclasses import dataclass
+from pathlib import Path
 
 PR_SET_PDEATHSIG = 1  # prctl(2): a signal for this process when its parent dies
+PROC_STAT = Path("/proc/stat")
 
 
 def free_cores() -> int:
@@ -23,6 +28,44 @@ def free_cores() -> int:
     cores = os.cpu_count() or 1
     busy = max(0.0, os.getloadavg()[0] - 1.0) if hasattr(os, "getloadavg") else 0.0
     return max(1, int(cores - busy + 0.5))
+
+
+@dataclass(frozen=True)
+class Reading:
+    """The clock, the CPU seconds of this process (all its threads) and of the whole
+    machine (every core's busy time, steal included; None where ``/proc/stat`` is not
+    readable)."""
+
+    wall: float
+    own: float
+    machine: float | None
+
+
+def reading() -> Reading:
+    """The CPU seconds now (:class:`Reading`)."""
+    return Reading(time.monotonic(), time.process_time(), _machine_busy())
+
+
+def others_busy(before: Reading, after: Reading) -> float | None:
+    """Cores other processes kept busy on average between two readings: the machine's busy
+    time less this process's, over the time between; None where the machine's is unknown
+    or no time passed."""
+    wall = after.wall - before.wall
+    if before.machine is None or after.machine is None or wall <= 0.0:
+        return None
+    theirs = (after.machine - before.machine) - (after.own - before.own)
+    return max(0.0, theirs / wall)
+
+
+def _machine_busy() -> float | None:
+    """Seconds every core has been busy since boot: ``/proc/stat``'s first line, all but
+    idle and iowait (user, nice, system, irq, softirq, steal; guest is within user)."""
+    try:
+        fields = PROC_STAT.read_text().split("\n", 1)[0].split()
+        ticks = [int(v) for v in fields[1:9]]
+        return (sum(ticks) - ticks[3] - ticks[4]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 def die_with_parent(parent: int) -> None:

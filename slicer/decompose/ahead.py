@@ -11,30 +11,50 @@ The worker is *spawned*, not forked: manifold3d runs on TBB threads, and a forke
 a process that has used them can hang on a lock a thread it does not have held. A spawned
 worker imports the slicer afresh (about a second of one core), so it is started only once
 the first attempt has taken :data:`AHEAD_AFTER` seconds and failed to satisfy: a part the
-first attempt decomposes never pays for it. A worker that dies (out of memory) leaves its
-attempt to this process, and no attempt goes to it after.
+first attempt decomposes never pays for it. Nor does a machine whose other processes kept
+its cores busy during that first attempt (:func:`core_to_spare`, by ``/proc/stat``: the load
+average would still count the slice run just before). A worker that dies (out of memory)
+leaves its attempt to this process, and no attempt goes to it after.
 """
 
 from __future__ import annotations
 
-import time
+import logging
+import os
 from collections import deque
 from collections.abc import Callable, Generator
 from concurrent.futures import Executor, Future
 from concurrent.futures.process import BrokenProcessPool
 from typing import Generic, TypeVar
 
-from slicer.cores import free_cores
+from slicer.cores import free_cores, others_busy, reading
 
 R = TypeVar("R")
+log = logging.getLogger(__name__)
 
 AHEAD_AFTER = 0.5
 """Seconds the first attempt must take before the later ones are shared with a worker
 (a spawned worker costs about a second of the other core to start)."""
 
+SPARE = 1.5
+"""Cores the machine must have beyond what other processes kept busy during the first
+attempt for a worker to be started: this process's one and half of another (a slice's
+attempt keeps about 1.3 cores busy itself, manifold3d's threads included)."""
+
 QUEUED = 2
 """Attempts the worker holds at a time: one it computes, one it starts on next while this
 process is busy with its own."""
+
+
+def core_to_spare(others: float | None) -> bool:
+    """Whether a worker would have a core: the machine's cores less ``others`` (the cores
+    other processes kept busy during the first attempt, :func:`~slicer.cores.others_busy`)
+    reach :data:`SPARE`; where ``others`` is unknown, two cores free by the load average
+    (:func:`~slicer.cores.free_cores`). A machine busy with other work (a test suite on
+    both cores) gains nothing from a worker but its start-up."""
+    if others is None:
+        return free_cores() >= 2
+    return (os.cpu_count() or 1) - others >= SPARE
 
 
 def in_order(count: int, here: Callable[[int], R], start: Callable[[], Executor],
@@ -51,9 +71,8 @@ def in_order(count: int, here: Callable[[int], R], start: Callable[[], Executor]
         caller handles is returned, not raised: a raised one ends the iteration).
     start : callable
         A pool of one worker process, started when the first attempt took
-        :data:`AHEAD_AFTER` seconds and a core is free for it
-        (:func:`~slicer.cores.free_cores`: not on a machine busy with other work); shut
-        down (its worker killed) when the iteration ends or is dropped.
+        :data:`AHEAD_AFTER` seconds and a core was free meanwhile (:func:`core_to_spare`);
+        shut down (its worker killed) when the iteration ends or is dropped.
     there : callable
         ``there(pool, i)``: attempt ``i`` submitted to the pool.
     """
@@ -78,6 +97,7 @@ class _Ahead(Generic[R]):
         self.queued: deque[tuple[int, Future[R]]] = deque()
         self.pool: Executor | None = None
         self.first = 0.0  # seconds of attempt 0
+        self.others: float | None = None  # cores other processes kept busy meanwhile
         self.broken = False
 
     def outcome(self, i: int) -> R:
@@ -108,11 +128,13 @@ class _Ahead(Generic[R]):
 
     def _pool(self) -> Executor | None:
         if self.pool is None and not self.broken and self.first >= AHEAD_AFTER \
-                and free_cores() >= 2:
+                and core_to_spare(self.others):
             try:
                 self.pool = self.start()
             except (OSError, BrokenProcessPool):  # no process to be had: all done here
                 self.broken = True
+            log.debug("attempts %d to %d shared with a worker process (first took %.2f s)",
+                      self.claimed, self.count - 1, self.first)
         return None if self.broken else self.pool
 
     def _collect(self, block: bool) -> None:
@@ -130,10 +152,11 @@ class _Ahead(Generic[R]):
     def _here_next(self) -> None:
         j = self.claimed
         self.claimed += 1
-        t0 = time.perf_counter()
+        before = reading()
         self.done[j] = self.here(j)
         if j == 0:
-            self.first = time.perf_counter() - t0
+            after = reading()
+            self.first, self.others = after.wall - before.wall, others_busy(before, after)
 
     def close(self) -> None:
         """Kill the worker (an attempt it runs is not needed) and shut its pool down."""

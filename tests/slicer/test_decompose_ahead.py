@@ -50,7 +50,7 @@ class Pools:
 def eager(monkeypatch: pytest.MonkeyPatch) -> None:
     """A worker for any attempt after the first, on any machine."""
     monkeypatch.setattr(ahead, "AHEAD_AFTER", 0.0)
-    monkeypatch.setattr(ahead, "free_cores", lambda: 2)
+    monkeypatch.setattr(ahead, "core_to_spare", lambda others: True)
 
 
 def _run(count: int, pools: Pools, task: Task, here: Task = square
@@ -107,10 +107,10 @@ def test_no_worker_is_started_where_it_cannot_pay(why: str,
                                                   monkeypatch: pytest.MonkeyPatch) -> None:
     if why == "no core is free":
         monkeypatch.setattr(ahead, "AHEAD_AFTER", 0.0)
-        monkeypatch.setattr(ahead, "free_cores", lambda: 1)
+        monkeypatch.setattr(ahead, "core_to_spare", lambda others: False)
     else:
         monkeypatch.setattr(ahead, "AHEAD_AFTER", 3600.0)
-        monkeypatch.setattr(ahead, "free_cores", lambda: 2)
+        monkeypatch.setattr(ahead, "core_to_spare", lambda others: True)
     pools = Pools()
     assert list(_run(5, pools, square)) == [(i * i, os.getpid()) for i in range(5)]
     assert pools.pools == []
@@ -141,7 +141,7 @@ def _decomposed(mesh: trimesh.Trimesh, monkeypatch: pytest.MonkeyPatch, after: f
 
     with monkeypatch.context() as patch:
         patch.setattr(ahead, "AHEAD_AFTER", after)
-        patch.setattr(ahead, "free_cores", lambda: 2)
+        patch.setattr(ahead, "core_to_spare", lambda others: True)
         patch.setattr(decomposition, "_spawn", spawned)
         dec = decompose(mesh, DecomposeSettings(), MACHINE, HEAD)
     return dec, len(started)
@@ -160,3 +160,19 @@ def test_a_decomposition_is_the_same_with_a_worker_as_without(
     assert [d.signature() for d in shared.runners_up] == \
         [d.signature() for d in alone.runners_up]
     assert [o.area for o in shared.overhang] == [o.area for o in alone.overhang]
+
+
+@pytest.mark.parametrize(("cores", "others", "spare"),
+                         [(2, 0.2, True), (2, 0.6, False), (4, 2.0, True), (4, 2.8, False),
+                          (1, 0.0, False)])
+def test_a_worker_is_started_only_where_other_processes_left_a_core(
+        cores: int, others: float, spare: bool, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(ahead.os, "cpu_count", lambda: cores)
+    assert ahead.core_to_spare(others) is spare
+
+
+@pytest.mark.parametrize("free", [1, 2])
+def test_without_the_machines_figures_the_load_average_decides(
+        free: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(ahead, "free_cores", lambda: free)
+    assert ahead.core_to_spare(None) is (free >= 2)
