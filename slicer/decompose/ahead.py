@@ -131,10 +131,12 @@ class _Ahead(Generic[R]):
                 and core_to_spare(self.others):
             try:
                 self.pool = self.start()
-            except (OSError, BrokenProcessPool):  # no process to be had: all done here
+            except (OSError, BrokenProcessPool) as exc:  # no process: all done here
                 self.broken = True
-            log.debug("attempts %d to %d shared with a worker process (first took %.2f s)",
-                      self.claimed, self.count - 1, self.first)
+                log.debug("no worker process for the attempts: %s", exc)
+            else:
+                log.debug("attempts %d to %d shared with a worker process (first took "
+                          "%.2f s)", self.claimed, self.count - 1, self.first)
         return None if self.broken else self.pool
 
     def _collect(self, block: bool) -> None:

@@ -176,3 +176,14 @@ def test_without_the_machines_figures_the_load_average_decides(
         free: int, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(ahead, "free_cores", lambda: free)
     assert ahead.core_to_spare(None) is (free >= 2)
+
+
+def test_a_worker_that_cannot_be_started_leaves_every_attempt_here(eager: None) -> None:
+    def start() -> Executor:
+        raise OSError(11, "Resource temporarily unavailable")  # fork/spawn refused
+
+    def there(pool: Executor, i: int) -> Future[tuple[int, int]]:
+        raise AssertionError("no pool, nothing submitted")
+
+    got = list(ahead.in_order(4, square, start, there))
+    assert got == [(i * i, os.getpid()) for i in range(4)]
