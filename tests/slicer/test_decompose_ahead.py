@@ -8,12 +8,19 @@ from __future__ import annotations
 import multiprocessing
 import os
 import pickle
+import select
+import signal
+import subprocess
+import sys
+import textwrap
 from collections.abc import Callable, Generator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
+from pathlib import Path
 
 import pytest
 import trimesh
 from ahead_tasks import die, square, square_then_hang
+from process_checks import gone_within
 
 import slicer.decompose.ahead as ahead
 import slicer.decompose.decomposition as decomposition
@@ -187,3 +194,36 @@ def test_a_worker_that_cannot_be_started_leaves_every_attempt_here(eager: None) 
 
     got = list(ahead.in_order(4, square, start, there))
     assert got == [(i * i, os.getpid()) for i in range(4)]
+
+
+SLICER = textwrap.dedent("""
+    import os, sys
+    import trimesh
+    from kinematics.machine import MachineGeometry
+    from slicer.decompose import DecomposeSettings
+    from slicer.decompose import decomposition as d
+    from slicer.printhead import Printhead
+
+    box = trimesh.creation.box((10.0, 10.0, 10.0))
+    pool = d._spawn(d._Job(box, box, DecomposeSettings(), MachineGeometry(),
+                           Printhead.default()))
+    print(pool.submit(os.getpid).result(), flush=True)
+    sys.stdin.read()  # until killed
+""")
+
+
+@pytest.mark.skipif(not hasattr(os, "pidfd_open"), reason="Linux pidfds")
+@pytest.mark.timeout(120)
+def test_the_worker_dies_with_a_killed_slicer() -> None:
+    root = Path(__file__).resolve().parents[2]
+    proc = subprocess.Popen([sys.executable, "-c", SLICER], cwd=root, stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        assert select.select([proc.stdout], [], [], 90.0)[0], "the worker never answered"
+        worker = int(proc.stdout.readline())
+        assert worker != proc.pid
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=30)
+    assert gone_within(worker, 20.0)

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from process_checks import gone_within
 
 ROOT = Path(__file__).resolve().parents[2]
 CHILD = textwrap.dedent("""
@@ -24,18 +25,6 @@ CHILD = textwrap.dedent("""
         print(" ".join(map(str, sorted(pids))), flush=True)
         sys.stdin.read()  # until killed
 """)
-
-
-def _gone_within(pid: int, seconds: float) -> bool:
-    """True once process ``pid`` has exited (waited on through a pidfd, no polling)."""
-    try:
-        fd = os.pidfd_open(pid)
-    except ProcessLookupError:
-        return True
-    try:
-        return bool(select.select([fd], [], [], seconds)[0])
-    finally:
-        os.close(fd)
 
 
 @pytest.mark.skipif(not hasattr(os, "pidfd_open") or (os.cpu_count() or 1) < 2,
@@ -51,7 +40,7 @@ def test_workers_die_with_a_killed_slicer() -> None:
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=30)
-    assert all(_gone_within(pid, 20.0) for pid in workers)
+    assert all(gone_within(pid, 20.0) for pid in workers)
 
 
 @pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="worker processes need two cores")
