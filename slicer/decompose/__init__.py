@@ -11,6 +11,8 @@
 * :mod:`~slicer.decompose.overhang`: the surface each sub-part would print in the air.
 * :mod:`~slicer.decompose.bases`: :func:`decompose_on_bases`, the part stood on a much
   larger flat face when it is refused (or overhangs) as placed.
+* :mod:`~slicer.decompose.ahead`: the attempts of one decomposition shared with a spawned
+  worker process, read in order.
 
 The other stages import what they need from here, not from the modules.
 """
