@@ -43,7 +43,7 @@ def _steal_s() -> float:
 
 def one(model: str, height: float) -> dict[str, Any]:
     """One cold slice with the slicer found first on the path: its figures."""
-    from harness import MODELS, cpu_seconds, hard_model
+    from harness import cpu_seconds, model_mesh
 
     from kinematics.machine import MachineGeometry
     from slicer.pipeline import slice_model
@@ -55,7 +55,7 @@ def one(model: str, height: float) -> dict[str, Any]:
     except ImportError:  # a checkout from before the slicer's sub-packages
         from slicer import planner
 
-    mesh = hard_model(model[2:]) if model.startswith("h:") else MODELS[model]()
+    mesh = model_mesh(model)
     planner.clear_caches()
     steal, cpu, wall = _steal_s(), cpu_seconds(), time.perf_counter()
     res = slice_model(mesh, ProcessSettings(layer_height=height), MachineGeometry(),

@@ -29,7 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from harness import MODELS, hard_model
+from harness import MODELS, check_models, model_mesh
 
 SECONDS = re.compile(r"^seconds ([0-9.]+)", re.MULTILINE)
 HERE = Path(__file__).resolve().parents[1]
@@ -82,8 +82,7 @@ def main() -> None:
     parser.add_argument("--allow-overhang", action="store_true",
                         help="pass --allow-overhang (write a file with walls over air)")
     args = parser.parse_args()
-    if args.model not in MODELS and not args.model.startswith("h:"):
-        parser.error(f"unknown model {args.model}; choose from {', '.join(MODELS)} or h:NAME")
+    check_models(parser, [args.model], hard=True)
     if args.base is not None and not (args.base / "slicer" / "pipeline.py").is_file():
         parser.error(f"--base {args.base}: not a checkout of this repository")
     versions = {"this": HERE} if args.base is None else {"base": args.base.resolve(),
@@ -93,8 +92,7 @@ def main() -> None:
     print(f"hostctl slice {name}.stl --layer-height {args.height:g}", flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         stl = Path(tmp) / f"{name}.stl"
-        mesh = hard_model(name) if args.model.startswith("h:") else MODELS[args.model]()
-        mesh.export(stl)
+        model_mesh(args.model).export(stl)
         for i in range(1, max(1, args.repeat) + 1):
             for tag, checkout in versions.items():
                 got = one_run(stl, Path(tmp) / "out.gcode", args.height, checkout,

@@ -19,7 +19,7 @@ import argparse
 import math
 
 import trimesh
-from harness import MODELS, best_of, hard_model
+from harness import MODELS, best_of, check_models, model_mesh
 
 import slicer.decompose.ahead as ahead
 from kinematics.machine import MachineGeometry
@@ -40,19 +40,6 @@ def decompose_once(mesh: trimesh.Trimesh, refine_steps: int, worker: bool) -> De
         ahead.AHEAD_AFTER = after
 
 
-def load(parser: argparse.ArgumentParser, names: list[str]) -> dict[str, trimesh.Trimesh]:
-    """The models named (all bench models when none), or a parser error naming the unknown."""
-    unknown = {n for n in names if n not in MODELS and not n.startswith("h:")}
-    if unknown:
-        parser.error(f"unknown model(s) {', '.join(sorted(unknown))}; choose from "
-                     f"{', '.join(MODELS)} or h:NAME (shared/models/hard)")
-    try:
-        return {n: hard_model(n[2:]) if n.startswith("h:") else MODELS[n]()
-                for n in names or list(MODELS)}
-    except (OSError, ValueError) as exc:
-        parser.error(str(exc))
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=3, help="runs per model (best reported)")
@@ -63,7 +50,7 @@ def main() -> None:
     parser.add_argument("models", nargs="*",
                         help=f"any of {', '.join(MODELS)}, or h:NAME (default: the former)")
     args = parser.parse_args()
-    models = load(parser, args.models)
+    models = {n: model_mesh(n) for n in check_models(parser, args.models, hard=True)}
     print(f"{'model':>12} {'faces':>7} {'parts':>5} {'iters':>5} {'tries':>5} {'worker':>6} "
           + " ".join(f"{k:>12}" for k in STAGES) + f" {'wall s':>7} {'cpu s':>6}")
     for name, mesh in models.items():

@@ -108,13 +108,22 @@ MODELS: dict[str, Callable[[], trimesh.Trimesh]] = {
     "curved": samples.curved_pipe, "pipe3-50k": pipe3_50k}
 
 
-def check_models(parser: argparse.ArgumentParser, names: list[str]) -> list[str]:
-    """``names`` (all models when empty), or a parser error naming the unknown ones."""
-    unknown = set(names) - set(MODELS)
+def check_models(parser: argparse.ArgumentParser, names: list[str], hard: bool = False
+                 ) -> list[str]:
+    """``names`` (all models when empty), or a parser error naming the unknown ones; with
+    ``hard``, ``h:NAME`` names are taken too (:func:`model_mesh`)."""
+    unknown = {n for n in names if n not in MODELS and not (hard and n.startswith("h:"))}
     if unknown:
         parser.error(f"unknown model(s) {', '.join(sorted(unknown))}; choose from "
-                     f"{', '.join(MODELS)}")
+                     f"{', '.join(MODELS)}" + (" or h:NAME (shared/models/hard)" if hard
+                                               else ""))
     return names or list(MODELS)
+
+
+def model_mesh(name: str) -> trimesh.Trimesh:
+    """A bench model by name, or for ``h:NAME`` the hard model NAME made 50 000 faces
+    (:func:`hard_model`)."""
+    return hard_model(name[2:]) if name.startswith("h:") else MODELS[name]()
 
 
 def cpu_seconds() -> float:

@@ -19,6 +19,8 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, TypeVar
 
+from slicer.cores import kill_workers
+
 T = TypeVar("T")
 
 
@@ -78,13 +80,7 @@ class WorkerProcess:
         """End the worker now: a call running in it raises :class:`WorkerDied`, and the next
         call starts a fresh worker."""
         if self._pool is not None:
-            self._kill(self._pool)
-
-    @staticmethod
-    def _kill(pool: ProcessPoolExecutor) -> None:
-        procs = getattr(pool, "_processes", None) or {}  # the executor's record of its workers
-        for proc in list(procs.values()):
-            proc.kill()
+            kill_workers(self._pool)
 
     def close(self) -> None:
         """End the worker now; a call still running is abandoned (its future fails).
@@ -96,5 +92,5 @@ class WorkerProcess:
         pool, self._pool = self._pool, None
         if pool is None:
             return
-        self._kill(pool)
+        kill_workers(pool)
         pool.shutdown(wait=True, cancel_futures=True)

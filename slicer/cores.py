@@ -14,6 +14,7 @@ import ctypes
 import os
 import signal
 import time
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -76,3 +77,10 @@ def die_with_parent(parent: int) -> None:
         ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
     if os.getppid() != parent:  # it died before the request took effect
         os._exit(1)
+
+
+def kill_workers(pool: Executor) -> None:
+    """Kill ``pool``'s worker processes now (a call they run is abandoned); shut the pool
+    down after. The executor's record of its workers is read: it offers no public way."""
+    for proc in list((getattr(pool, "_processes", None) or {}).values()):
+        proc.kill()

@@ -27,7 +27,7 @@ from concurrent.futures import Executor, Future
 from concurrent.futures.process import BrokenProcessPool
 from typing import Generic, TypeVar
 
-from slicer.cores import free_cores, others_busy, reading
+from slicer.cores import free_cores, kill_workers, others_busy, reading
 
 R = TypeVar("R")
 log = logging.getLogger(__name__)
@@ -154,16 +154,17 @@ class _Ahead(Generic[R]):
     def _here_next(self) -> None:
         j = self.claimed
         self.claimed += 1
+        if j > 0:
+            self.done[j] = self.here(j)
+            return
         before = reading()
         self.done[j] = self.here(j)
-        if j == 0:
-            after = reading()
-            self.first, self.others = after.wall - before.wall, others_busy(before, after)
+        after = reading()
+        self.first, self.others = after.wall - before.wall, others_busy(before, after)
 
     def close(self) -> None:
         """Kill the worker (an attempt it runs is not needed) and shut its pool down."""
         if self.pool is None:
             return
-        for proc in list((getattr(self.pool, "_processes", None) or {}).values()):
-            proc.kill()  # the executor's record of its workers: no public way to stop one
+        kill_workers(self.pool)
         self.pool.shutdown(wait=True, cancel_futures=True)
