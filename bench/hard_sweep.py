@@ -25,10 +25,13 @@ with its reason), ``error`` (anything else: a bug).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
 import sys
 import tempfile
 import time
 from collections import defaultdict
+from collections.abc import Iterator
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -39,11 +42,13 @@ HARD = ROOT.parent / "shared" / "models" / "hard"
 WALLS, INSIDE = 0.998, 0.99
 
 
-def slice_one(task: tuple[str, str, float]) -> dict[str, object]:
-    """Slice one part (a file, or ``variant:<index>``) at one layer height; its figures."""
+def slice_one(task: tuple[str, str, float, str]) -> dict[str, object]:
+    """Slice one part (a file, or ``variant:<index>``) at one layer height; its figures. With
+    a log folder (the task's last item, "" for none), the closed loop's log lines go to
+    ``<folder>/<name>-<height>.log``."""
     from slicer.mesh.hard_samples import hard_variant
 
-    kind, source, t = task
+    kind, source, t, logs = task
     name = Path(source).stem
     with tempfile.TemporaryDirectory() as tmp:
         part = source
@@ -51,7 +56,37 @@ def slice_one(task: tuple[str, str, float]) -> dict[str, object]:
             variant = hard_variant(int(source.split(":")[1]))
             name, part = variant.name, str(Path(tmp) / f"{variant.name}.stl")
             variant.mesh().export(part)
-        return _sliced(kind, name, part, t)
+        if not logs:
+            return _sliced(kind, name, part, t)
+        with _loop_log(Path(logs) / f"{name}-{t:g}.log"):
+            return _sliced(kind, name, part, t)
+
+
+@contextlib.contextmanager
+def _loop_log(path: Path) -> Iterator[None]:
+    """The closed loop's INFO lines (``slicer.repair``, ``slicer.pipeline``) written to
+    ``path``, each with the seconds since the slice began."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(path, mode="w")
+    start = time.perf_counter()
+
+    class _Since(logging.Formatter):
+        def format(self, record: logging.LogRecord) -> str:
+            return f"{time.perf_counter() - start:8.1f} {record.name} {record.getMessage()}"
+
+    handler.setFormatter(_Since())
+    loggers = [logging.getLogger(n) for n in ("slicer.repair", "slicer.pipeline")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.addHandler(handler)
+        lg.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.removeHandler(handler)
+            lg.setLevel(level)
+        handler.close()
 
 
 def _sliced(kind: str, name: str, part: str, t: float) -> dict[str, object]:
@@ -102,7 +137,7 @@ def line(r: dict[str, object]) -> str:
     return f"{head} {r['seconds']:6.1f} s  {r['reason']}"
 
 
-def tasks(args: argparse.Namespace) -> list[tuple[str, str, float]]:
+def tasks(args: argparse.Namespace) -> list[tuple[str, str, float, str]]:
     """(class, source, layer height) of every slice asked for."""
     from slicer.mesh.hard_samples import hard_variant
 
@@ -112,7 +147,7 @@ def tasks(args: argparse.Namespace) -> list[tuple[str, str, float]]:
                  if not args.kinds or hard_variant(i).kind in args.kinds]
     else:
         parts = [("hard", str(p)) for p in sorted(HARD.glob("*.stl"))]
-    return [(k, s, t) for k, s in parts for t in args.heights]
+    return [(k, s, t, args.log) for k, s in parts for t in args.heights]
 
 
 def main() -> None:
@@ -123,6 +158,9 @@ def main() -> None:
                     help="only variants of these classes (pipe, elbow, tree, ball)")
     ap.add_argument("--heights", type=float, nargs="+", default=[0.2, 0.3])
     ap.add_argument("--jobs", type=int, default=2)
+    ap.add_argument("--log", default="", metavar="DIR",
+                    help="write each slice's closed-loop log (rounds, decompositions, "
+                         "seconds) to DIR/<name>-<height>.log")
     args = ap.parse_args()
     todo = tasks(args)
     results = []

@@ -50,11 +50,14 @@ from slicer.plan import PrintPlan
 from slicer.printhead import Printhead
 from slicer.repair import (
     ALTERNATIVES,
+    FIRST_ROUNDS,
     REPAIR_ROUNDS,
+    Begun,
     Try,
     best_decomposition,
     leaned_instead,
-    repaired,
+    leaning,
+    started,
     thinned,
 )
 from slicer.replay import (
@@ -375,7 +378,7 @@ class _Slicing:
             nozzle_diameter=self.settings.nozzle_diameter)
         return replace(base, seed=base.seed + k)
 
-    def decomposed(self, k: int, rounds: int) -> Try[SliceResult]:
+    def decomposed(self, k: int, rounds: int) -> Begun[SliceResult]:
         """The best try of the ``k``-th decomposition (:func:`repair.best_decomposition`):
         planned upright, then leaning for at most ``rounds`` tries. The first is the one
         asked for; the next ones are its runners-up (the decomposition's other valid
@@ -395,9 +398,10 @@ class _Slicing:
             raise repair.Refused(str(exc)) from None
 
     def _decomposed(self, dec: DecomposeSettings | Decomposition | None, rounds: int,
-                    timings: dict[str, float], t0: float) -> Try[SliceResult]:
+                    timings: dict[str, float], t0: float) -> Begun[SliceResult]:
         """Plan ``dec`` (a decomposition made, or the settings of one to make), then write,
-        check and repair it."""
+        check and repair it: its first tries, and the rest of them to make when the loop
+        asks (:func:`repair.best_decomposition`)."""
         from slicer.decompose import Decomposition
 
         self.report("decomposing and planning")
@@ -447,13 +451,20 @@ class _Slicing:
                 raise
             first, leaned = leaned_instead(exc, retry, (SliceError, SlicingError)), 1
         t3 = time.perf_counter()
-        best, done = repaired(first, retry, (SliceError, SlicingError), rounds, leaned)
-        best = thinned(best, thin if retry is not None else None, (SliceError, SlicingError))
-        if done:
-            timings["repair"] = timings.get("repair", 0.0) + time.perf_counter() - t3
-            timings["repair_rounds"] = float(done)
-            best.result.timings.update({k: timings[k] for k in ("repair", "repair_rounds")})
-        return best
+        state = leaning(started(first, leaned), retry, (SliceError, SlicingError),
+                        min(rounds, FIRST_ROUNDS))
+        _count_rounds(state.best, state.done, timings, t3)
+        if retry is None:
+            return Begun(state.best)
+
+        def rest() -> Try[SliceResult]:
+            """The decomposition's further leaning tries, then thinner layers."""
+            t4 = time.perf_counter()
+            more = leaning(state, retry, (SliceError, SlicingError), rounds)
+            best = thinned(more.best, thin, (SliceError, SlicingError))
+            return _count_rounds(best, more.done, timings, t4)
+
+        return Begun(state.best, rest)
 
     def thinning(self, slopes: bool = True) -> Thinning:
         """Thinner layers where the replay's support rule holds the surface at a height no
@@ -503,6 +514,17 @@ class _Slicing:
         return _finish(mesh, plan, self.settings, self.setup, index, timings, t0,
                        self.keep_plan, self.name, seed, self.policy, judge=False,
                        stage=stage)
+
+
+def _count_rounds(best: Try[SliceResult], done: int, timings: dict[str, float],
+                  t0: float) -> Try[SliceResult]:
+    """``best``, after ``done`` leaning rounds in all that (with thinner layers) began at
+    ``t0``: ``timings`` (and the try's own) count their seconds and rounds."""
+    if done:
+        timings["repair"] = timings.get("repair", 0.0) + time.perf_counter() - t0
+        timings["repair_rounds"] = float(done)
+        best.result.timings.update({k: timings[k] for k in ("repair", "repair_rounds")})
+    return best
 
 
 def _reporter(progress: Progress | None) -> Callable[[str], None]:

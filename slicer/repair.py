@@ -5,7 +5,7 @@ one file (a :class:`Try`); here they are tried in turn and the best file is kept
 
 1. the paper's try (the root upright), then up to :data:`REPAIR_ROUNDS` tries with the root's
    layers leaning (:mod:`slicer.paths.upright`), each after the first hinted at the
-   unsupported walls of the last (:func:`repaired`);
+   unsupported walls of the last (:func:`leaning`);
 2. when no lean of that decomposition holds every wall, **other decompositions**, up to
    :data:`ALTERNATIVES`: the decomposition's runners-up (its other valid attempts, made
    already), then the part decomposed with the next seeds (another k-means partition, so
@@ -18,6 +18,10 @@ one file (a :class:`Try`); here they are tried in turn and the best file is kept
    what the height holds, then through the points where its walls are over air
    (:func:`thinned`).
 
+The tries after a decomposition's first lean (its hinted leans, its thinner layers) are local
+repairs: they come at once when its best try by then leaves at most :data:`NEAR` wall layers
+over air, else only after every other decomposition has begun (:func:`best_decomposition`).
+
 Beyond the paper, which decomposes once and never looks back. The tries are ranked by
 :meth:`Try.rank`: fewest wall layers over air (what a file is refused for), then fewest
 unsupported wall layers by the strict rule, then most walls held; the loop stops as soon as
@@ -26,10 +30,11 @@ a try is support-free by the strict rule (:attr:`ReplayReport.support_free`).
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
-from collections.abc import Callable
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
 from typing import Generic, TypeVar
 
 import numpy as np
@@ -50,6 +55,13 @@ five more slices of the sweep's 64 (tree10 and elbow13 at both heights, tree26 a
 and cost a part that stays unsupported about twice its time (``bench/hard_sweep.py``)."""
 ALTERNATIVE_ROUNDS = 1
 """Leaning tries of each other decomposition at most."""
+FIRST_ROUNDS = 1
+"""Leaning tries of a decomposition before the loop judges how near support-free it is."""
+NEAR = 2
+"""Wall layers over air at most, after a decomposition's first lean, for its further tries
+(hinted leans, thinner layers) to come before the next decomposition's; one farther off is
+tried further only once every other decomposition has begun. See docs/decomposition.md,
+*Near or far*."""
 
 
 class Refused(Exception):
@@ -93,6 +105,14 @@ class Try(Generic[R]):
         return (self.over_air, len(self.report.unsupported_wall_layers),
                 -self.report.wall_supported)
 
+    def __str__(self) -> str:
+        """What the log says of the try: its wall layers over air and unsupported."""
+        if self.report is None:
+            return "unchecked"
+        free = ", support-free" if self.support_free else ""
+        return (f"{self.over_air} wall layers over air, "
+                f"{len(self.report.unsupported_wall_layers)} unsupported{free}")
+
     def misses(self) -> np.ndarray:
         """The try's unsupported wall samples (platform frame), (k, 3)."""
         if self.report is None:
@@ -120,40 +140,65 @@ def leaned_instead(error: Exception, again: Callable[[LeanHints], Try[R]],
         raise error from None
 
 
-def repaired(first: Try[R], again: Callable[[LeanHints], Try[R]] | None,
-             failures: tuple[type[Exception], ...], rounds: int = REPAIR_ROUNDS,
-             done: int = 0) -> tuple[Try[R], int]:
+@dataclass(frozen=True)
+class Leaning(Generic[R]):
+    """Where the leaning tries of one decomposition stand (:func:`leaning`): the best try so
+    far, the rounds taken, the hints of the next round (None: none can be made, the last try
+    named no unsupported wall), and whether a failing or no better round ended them."""
+
+    best: Try[R]
+    done: int = 0
+    hints: LeanHints | None = NO_HINTS
+    ended: bool = False
+
+    def go_on(self, rounds: int) -> bool:
+        """Whether another round is to be tried, ``rounds`` in all at most."""
+        return (not self.ended and self.done < rounds and not self.best.support_free
+                and self.hints is not None)
+
+
+def leaning(state: Leaning[R], again: Callable[[LeanHints], Try[R]] | None,
+            failures: tuple[type[Exception], ...], rounds: int) -> Leaning[R]:
     """While the best try so far is not support-free, plan again with the root's layers
     leaning (:mod:`slicer.paths.upright`) and hints at the unsupported walls of every
     leaning try (:class:`~slicer.paths.LeanHints`: it leans harder there; the first lean
-    takes none, the upright try's misses are not its own), at most ``rounds`` tries in all
-    (``done`` taken before: ``first`` is then a leaning try). A try that fails outright
-    (one of ``failures``), or a hinted one no better than the best, ends the loop.
+    takes none, the upright try's misses are not its own), ``rounds`` tries in all at most,
+    counting those of ``state``. A try that fails outright (one of ``failures``), or a
+    hinted one no better than the best, ends them: :attr:`Leaning.ended`.
 
-    Returns
-    -------
-    (Try, int)
-        The best try (:meth:`Try.rank`) and the rounds taken.
-    """
-    best = last = first
-    hints = NO_HINTS
-    while (again is not None and done < rounds and not best.support_free
-           and (done == 0 or last.misses().size)):  # a hinted round needs misses
-        if done:
-            hints = hints.more(last.misses())
-        done += 1
+    A state returned may be handed back with more ``rounds``: the tries go on as if they
+    had not stopped (the loop leaves a decomposition far from support-free for others and
+    comes back to it, :func:`best_decomposition`)."""
+    while again is not None and state.go_on(rounds):
+        assert state.hints is not None
+        done = state.done + 1
         try:
-            last = again(hints)
+            last = again(state.hints)
         except failures as exc:
             log.info("repair round %d failed: %s", done, exc)
-            break
-        log.info("repair round %d: %d wall layers over air (best so far %d)", done,
-                 last.over_air, best.over_air)
-        if last.rank() >= best.rank() and done > 1:
-            break  # hints that bring nothing: more of them would not either
-        if last.rank() < best.rank():
-            best = last
-    return best, done
+            return replace(state, done=done, ended=True)
+        log.info("repair round %d: %s (best so far %d over air)", done, last,
+                 state.best.over_air)
+        hints = _hinted(state.hints, last)
+        if last.rank() >= state.best.rank() and done > 1:
+            # hints that bring nothing: more of them would not either
+            return replace(state, done=done, hints=hints, ended=True)
+        best = last if last.rank() < state.best.rank() else state.best
+        state = Leaning(best, done, hints)
+    return state
+
+
+def started(first: Try[R], done: int = 0) -> Leaning[R]:
+    """The leaning tries of a decomposition whose first try is ``first`` (an upright try, or
+    with ``done`` = 1 its first leaning try: the upright one failed)."""
+    log.info("first try (%s): %s", "leaning" if done else "upright", first)
+    return Leaning(first, done, _hinted(NO_HINTS, first) if done else NO_HINTS)
+
+
+def _hinted(hints: LeanHints, last: Try[R]) -> LeanHints | None:
+    """``hints`` and the unsupported walls of the leaning try ``last``; None when it names
+    none (a hinted round would repeat it)."""
+    return hints.more(last.misses()) if last.misses().size else None
 
 
 def thinned(best: Try[R], again: Callable[[Try[R], bool], Try[R]] | None,
@@ -186,52 +231,111 @@ def _better(best: Try[R], again: Callable[[Try[R], bool], Try[R]], spots: bool,
     except failures as exc:
         log.info("thinner layers %s failed: %s", what, exc)
         return best
-    log.info("thinner layers %s: %d wall layers over air (%d before)", what, other.over_air,
-             best.over_air)
+    log.info("thinner layers %s: %s (%d over air before)", what, other, best.over_air)
     return other if other.rank() < best.rank() else best
 
 
-def best_decomposition(decomposed: Callable[[int, int], Try[R]], alternatives: int,
+@dataclass
+class Begun(Generic[R]):
+    """A decomposition's tries up to its first lean: the best of them, and the rest of its
+    tries (more leaning rounds, thinner layers) as a callable returning its best try in the
+    end (None: none left)."""
+
+    best: Try[R]
+    rest: Callable[[], Try[R]] | None = None
+
+
+def best_decomposition(decomposed: Callable[[int, int], Begun[R]], alternatives: int,
                        rounds: int, failures: tuple[type[Exception], ...],
                        timings: dict[str, float]) -> Try[R]:
-    """``decomposed(k, rounds)`` is the best try of the ``k``-th decomposition (0: the one
-    asked for) with at most ``rounds`` leaning tries, and raises one of ``failures`` when it
-    plans no file.
+    """``decomposed(k, rounds)`` begins the ``k``-th decomposition (0: the one asked for),
+    allowed at most ``rounds`` leaning tries, and raises one of ``failures`` when it plans no
+    file.
 
-    The first decomposition's best try, or a better one of the next ``alternatives``
-    (tried only while no try is support-free, each with :data:`ALTERNATIVE_ROUNDS` leaning
-    tries at most). The first decomposition's failure is raised when none plans a file;
-    ``timings`` gains ``alternatives`` (seconds) and ``alternatives_tried``, and when the
-    try kept is not the first decomposition's, ``first_decomposition``: the seconds its
-    tries took, which the kept try's own stages do not count."""
-    best: Try[R] | None = None
-    first_error: Exception | None = None
-    start = time.perf_counter()
-    try:
-        best = decomposed(0, rounds)
-    except failures as exc:
-        first_error = exc
-    first, first_seconds = best, time.perf_counter() - start
-    t0, tried = time.perf_counter(), 0
-    for k in range(1, alternatives + 1):
-        if best is not None and best.support_free:
+    The best try (:meth:`Try.rank`, then the earlier decomposition) of the first
+    decomposition and, while none is support-free, of the next ``alternatives`` (each with
+    :data:`ALTERNATIVE_ROUNDS` leaning tries at most). A decomposition is tried to its end
+    (:attr:`Begun.rest`) at once when its first tries come within :data:`NEAR` wall layers
+    over air of support-free, else only once every other has begun: a local repair seldom
+    holds a part that far off, another decomposition often does. The first decomposition's
+    failure is raised when none plans a file; ``timings`` gains ``alternatives`` (seconds)
+    and ``alternatives_tried``, and when the try kept is not the first decomposition's,
+    ``first_decomposition``: the seconds its tries took, which the kept try's own stages do
+    not count."""
+    search = _Search(decomposed, failures, timings)
+    for k in range(alternatives + 1):
+        if search.support_free():
             break
-        tried += 1
-        try:
-            other = decomposed(k, min(rounds, ALTERNATIVE_ROUNDS))
-        except failures as exc:
-            log.info("decomposition %d failed: %s", k, exc)
-            continue
-        log.info("decomposition %d: %d wall layers over air", k, other.over_air)
-        if best is None or other.rank() < best.rank():
-            best = other
-    if tried:
-        timings["alternatives"] = time.perf_counter() - t0
-        timings["alternatives_tried"] = float(tried)
-    if best is not first:
-        timings["first_decomposition"] = first_seconds
-    if best is None:
-        assert first_error is not None
-        raise first_error
-    return best
+        search.begin(k, rounds if k == 0 else min(rounds, ALTERNATIVE_ROUNDS))
+    for k, rest in search.later:
+        if search.support_free():
+            break
+        search.finish(k, rest)
+    return search.kept()
 
+
+@dataclass
+class _Search(Generic[R]):
+    """:func:`best_decomposition`'s decompositions: the best try of each so far, those left
+    for later, the seconds each took."""
+
+    decomposed: Callable[[int, int], Begun[R]]
+    failures: tuple[type[Exception], ...]
+    timings: dict[str, float]
+    tries: dict[int, Try[R]] = field(default_factory=dict)
+    later: list[tuple[int, Callable[[], Try[R]]]] = field(default_factory=list)
+    seconds: dict[int, float] = field(default_factory=dict)
+    first_error: Exception | None = None
+
+    def support_free(self) -> bool:
+        return any(t.support_free for t in self.tries.values())
+
+    def begin(self, k: int, rounds: int) -> None:
+        """The ``k``-th decomposition's first tries, and its rest now or later."""
+        with self._timed(k):
+            try:
+                begun = self.decomposed(k, rounds)
+            except self.failures as exc:
+                if k == 0:
+                    self.first_error = exc
+                log.info("decomposition %d failed: %s", k, exc)
+                return
+            self.tries[k] = begun.best
+        if begun.rest is None or begun.best.support_free:
+            self._ended(k)
+        elif begun.best.over_air <= NEAR:
+            self.finish(k, begun.rest)
+        else:
+            log.info("decomposition %d left for later: %s", k, begun.best)
+            self.later.append((k, begun.rest))
+
+    def finish(self, k: int, rest: Callable[[], Try[R]]) -> None:
+        """The rest of the ``k``-th decomposition's tries."""
+        with self._timed(k):
+            self.tries[k] = rest()
+        self._ended(k)
+
+    def kept(self) -> Try[R]:
+        """The best try of all (raises the first decomposition's failure: none planned)."""
+        others = [s for k, s in self.seconds.items() if k]
+        if others:
+            self.timings["alternatives"] = sum(others)
+            self.timings["alternatives_tried"] = float(len(others))
+        if not self.tries:
+            assert self.first_error is not None
+            raise self.first_error
+        k, best = min(self.tries.items(), key=lambda kt: (kt[1].rank(), kt[0]))
+        if k:
+            self.timings["first_decomposition"] = self.seconds.get(0, 0.0)
+        return best
+
+    def _ended(self, k: int) -> None:
+        log.info("decomposition %d: %s", k, self.tries[k])
+
+    @contextlib.contextmanager
+    def _timed(self, k: int) -> Iterator[None]:
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[k] = self.seconds.get(k, 0.0) + time.perf_counter() - t0

@@ -3,6 +3,7 @@ are planned, which is kept, what is raised."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from types import SimpleNamespace
 
@@ -13,10 +14,14 @@ from slicer.paths import NO_HINTS, LeanHints, SlicingError
 from slicer.plan import PrintPlan
 from slicer.repair import (
     ALTERNATIVE_ROUNDS,
+    NEAR,
+    REPAIR_ROUNDS,
+    Begun,
     Refused,
     Try,
     best_decomposition,
-    repaired,
+    leaning,
+    started,
     thinned,
 )
 from slicer.replay import ReplayReport, WallSamples
@@ -44,6 +49,13 @@ def _try(name: str, over_air: int, bad: int, walls: float) -> Try[str]:
     return Try(name, _report(over_air, bad, walls), PrintPlan.__new__(PrintPlan))
 
 
+def repaired(first: Try[str], again: Script, failures: tuple[type[Exception], ...],
+             rounds: int = REPAIR_ROUNDS) -> tuple[Try[str], int]:
+    """The leaning tries from ``first``: the best and the rounds taken."""
+    state = leaning(started(first), again, failures, rounds)
+    return state.best, state.done
+
+
 @dataclass
 class Script:
     """Tries handed out in order (an exception is raised instead), and what was asked."""
@@ -57,6 +69,11 @@ class Script:
         if isinstance(got, Exception):
             raise got
         return got
+
+
+def begun(script: Script) -> Callable[[int, int], Begun[str]]:
+    """Decompositions whose tries are ``script``'s, each with none left after it."""
+    return lambda k, rounds: Begun(script(k, rounds))
 
 
 def test_a_support_free_first_try_is_kept_without_planning_again() -> None:
@@ -100,7 +117,7 @@ def test_a_failing_round_ends_the_loop_keeping_the_best_so_far() -> None:
 def test_other_decompositions_are_tried_only_while_none_is_support_free() -> None:
     decomposed = Script([_try("seed0", 1, 1, 0.99), _try("seed1", 0, 0, 0.999)])
     timings: dict[str, float] = {}
-    best = best_decomposition(decomposed, 2, 3, FAILURES, timings)
+    best = best_decomposition(begun(decomposed), 2, 3, FAILURES, timings)
     assert best.result == "seed1"
     assert decomposed.asked == [(0, 3), (1, min(3, ALTERNATIVE_ROUNDS))]
     assert timings["alternatives_tried"] == 1.0
@@ -143,7 +160,7 @@ def test_the_first_decompositions_seconds_are_named_when_another_is_kept(
     monkeypatch.setattr("slicer.repair.time", SimpleNamespace(perf_counter=clock))
     decomposed = _timed_script(clock, [(first, 40.0), (_try("seed1", 0, 0, 0.999), 7.0)])
     timings: dict[str, float] = {}
-    assert best_decomposition(decomposed, 2, 3, FAILURES, timings).result == "seed1"
+    assert best_decomposition(begun(decomposed), 2, 3, FAILURES, timings).result == "seed1"
     assert timings["first_decomposition"] == pytest.approx(40.0)
     assert timings["alternatives"] == pytest.approx(7.0)
     clock2 = Clock()
@@ -152,41 +169,41 @@ def test_the_first_decompositions_seconds_are_named_when_another_is_kept(
                                   (_try("seed1", 2, 2, 0.99), 7.0),
                                   (Refused("refused"), 3.0)])
     timings = {}
-    assert best_decomposition(kept, 2, 3, FAILURES, timings).result == "seed0"
+    assert best_decomposition(begun(kept), 2, 3, FAILURES, timings).result == "seed0"
     assert "first_decomposition" not in timings  # its stages are the kept try's own
 
 
 def test_a_support_free_first_decomposition_tries_no_other() -> None:
     decomposed = Script([_try("seed0", 0, 0, 0.999)])
     timings: dict[str, float] = {}
-    assert best_decomposition(decomposed, 2, 3, FAILURES, timings).result == "seed0"
+    assert best_decomposition(begun(decomposed), 2, 3, FAILURES, timings).result == "seed0"
     assert len(decomposed.asked) == 1 and "alternatives_tried" not in timings
 
 
 def test_no_better_alternative_keeps_the_first() -> None:
     decomposed = Script([_try("seed0", 1, 1, 0.99), _try("seed1", 2, 2, 0.99),
                          Refused("another decomposition refused")])
-    assert best_decomposition(decomposed, 2, 3, FAILURES, {}).result == "seed0"
+    assert best_decomposition(begun(decomposed), 2, 3, FAILURES, {}).result == "seed0"
 
 
 def test_a_first_decomposition_that_plans_nothing_gives_way_to_one_that_does() -> None:
     decomposed = Script([SlicingError("sub-part 2, layer 6: no plane clears platform"),
                          _try("seed1", 1, 1, 0.99), _try("seed2", 0, 2, 0.99)])
-    assert best_decomposition(decomposed, 2, 3, FAILURES, {}).result == "seed2"
+    assert best_decomposition(begun(decomposed), 2, 3, FAILURES, {}).result == "seed2"
 
 
 def test_when_none_plans_the_first_failure_is_raised() -> None:
     first = SlicingError("sub-part 2, layer 20: no plane clears printed part")
     decomposed = Script([first, Refused("decomposition refused"), SlicingError("other")])
     with pytest.raises(SlicingError) as caught:
-        best_decomposition(decomposed, 2, 3, FAILURES, {})
+        best_decomposition(begun(decomposed), 2, 3, FAILURES, {})
     assert caught.value is first
 
 
 def test_a_failure_not_listed_stops_at_once() -> None:
     decomposed = Script([ValueError("a bug"), _try("seed1", 0, 0, 1.0)])
     with pytest.raises(ValueError, match="a bug"):
-        best_decomposition(decomposed, 2, 3, FAILURES, {})
+        best_decomposition(begun(decomposed), 2, 3, FAILURES, {})
 
 
 RING = (0.13, 53.2)  # (layer height, overhang °) that holds the unsupported walls
@@ -247,3 +264,96 @@ def test_no_thinned_try_where_it_cannot_help(case: str) -> None:
     again = Script([])
     assert thinned(best, None if case == "no loop" else again, FAILURES) is best
     assert again.asked == []
+
+
+def test_stopped_leaning_tries_go_on_as_if_they_had_not_stopped() -> None:
+    """The loop leaves a decomposition after its first lean and may come back to it: the
+    rounds then are those it would have made at once, with the same hints."""
+    def tries() -> list[Try[str] | Exception]:
+        return [_try("lean", 4, 4, 0.99), _try("hinted", 3, 3, 0.99),
+                _try("hinted2", 2, 2, 0.99)]
+
+    at_once = Script(tries())
+    whole = leaning(started(_try("upright", 5, 5, 0.98)), at_once, FAILURES, 3)
+    again = Script(tries())
+    state = leaning(started(_try("upright", 5, 5, 0.98)), again, FAILURES, 1)
+    assert (state.best.result, state.done, len(again.asked)) == ("lean", 1, 1)
+    resumed = leaning(state, again, FAILURES, 3)
+    assert (resumed.best.result, resumed.done) == (whole.best.result, whole.done) == (
+        "hinted2", 3)
+    for (a,), (b,) in zip(at_once.asked, again.asked, strict=True):
+        assert len(a.rounds) == len(b.rounds)
+        assert all(np.array_equal(p, q) for p, q in zip(a.rounds, b.rounds, strict=True))
+
+
+def test_a_leaning_try_after_a_failed_upright_one_hints_the_next_round() -> None:
+    """``started(first, 1)``: ``first`` is the first lean; its misses hint round two."""
+    first = _try("lean", 3, 3, 0.99)
+    again = Script([_try("hinted", 0, 0, 1.0)])
+    state = leaning(started(first, 1), again, FAILURES, 3)
+    assert (state.best.result, state.done) == ("hinted", 2)
+    (hints,), = again.asked
+    assert len(hints.rounds) == 1 and np.array_equal(hints.rounds[0], first.misses())
+
+
+@dataclass
+class Decompositions:
+    """Scripted decompositions: each ``(first tries' best, its best in the end)`` (None in
+    the end: nothing left to try; an exception: it fails), and the order of the calls."""
+
+    script: list[tuple[Try[str], Try[str] | None] | Exception]
+    calls: list[str] = field(default_factory=list)
+
+    def __call__(self, k: int, rounds: int) -> Begun[str]:
+        self.calls.append(f"begin {k}")
+        got = self.script[k]
+        if isinstance(got, Exception):
+            raise got
+        first, end = got
+        if end is None:
+            return Begun(first)
+
+        def rest() -> Try[str]:
+            self.calls.append(f"rest {k}")
+            return end
+
+        return Begun(first, rest)
+
+
+FAR = NEAR + 1  # wall layers over air after a first lean: left for later
+
+
+def test_a_decomposition_far_from_support_free_is_finished_after_the_others_begin() -> None:
+    steps = Decompositions([(_try("d0", FAR, FAR, 0.98), _try("d0 end", 3, 3, 0.99)),
+                            (_try("d1", FAR + 2, 9, 0.97), _try("d1 end", 5, 5, 0.98)),
+                            (_try("d2", NEAR, 3, 0.99), _try("d2 end", 1, 1, 0.995))])
+    timings: dict[str, float] = {}
+    best = best_decomposition(steps, 2, 3, FAILURES, timings)
+    assert steps.calls == ["begin 0", "begin 1", "begin 2", "rest 2", "rest 0", "rest 1"]
+    assert best.result == "d2 end" and timings["alternatives_tried"] == 2.0
+    assert "first_decomposition" in timings
+
+
+def test_a_support_free_alternative_spares_the_far_decompositions_rest() -> None:
+    steps = Decompositions([(_try("d0", FAR, FAR, 0.98), _try("never", 0, 0, 1.0)),
+                            (_try("d1", 0, 0, 0.999), None)])
+    assert best_decomposition(steps, 3, 3, FAILURES, {}).result == "d1"
+    assert steps.calls == ["begin 0", "begin 1"]
+
+
+def test_a_decomposition_near_support_free_is_finished_before_the_next_begins() -> None:
+    steps = Decompositions([(_try("d0", NEAR, NEAR, 0.99), _try("d0 end", 0, 0, 0.999)),
+                            (_try("never", 0, 0, 1.0), None)])
+    assert best_decomposition(steps, 2, 3, FAILURES, {}).result == "d0 end"
+    assert steps.calls == ["begin 0", "rest 0"]
+
+
+def test_of_tries_ranked_alike_the_earlier_decompositions_is_kept_whenever_it_ended() -> None:
+    """A far decomposition finished last keeps its place: the one asked for wins a tie."""
+    steps = Decompositions([(_try("d0", FAR, FAR, 0.98), _try("d0 end", 1, 1, 0.99)),
+                            (_try("d1", 1, 1, 0.99), _try("d1 end", 1, 1, 0.99)),
+                            Refused("the same sub-parts as a decomposition tried")])
+    timings: dict[str, float] = {}
+    assert best_decomposition(steps, 2, 3, FAILURES, timings).result == "d0 end"
+    assert steps.calls == ["begin 0", "begin 1", "rest 1", "begin 2", "rest 0"]
+    assert "first_decomposition" not in timings and timings["alternatives_tried"] == 2.0
