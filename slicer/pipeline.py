@@ -419,14 +419,17 @@ class _Slicing:
                      if index is not None else None)
         if index is not None:  # and its coverage grid while the G-code is written
             index = self.early.submit(_with_grid, index, self.settings)
+        # the closures hold the decomposition, not the first plan: a decomposition left for
+        # later keeps only its best try (:class:`Begun`)
+        decomposition = plan.decomposition
 
         def replanned(hints: LeanHints | None, thin: Thinning | None = None
                       ) -> Try[SliceResult]:
             """The decomposition planned again, leaning with ``hints`` (None: upright)."""
-            assert plan.decomposition is not None
+            assert decomposition is not None
             t2 = time.perf_counter()
             self.report("repair")
-            made = plan_print(plan.decomposition, self.settings, self.geometry, self.head,
+            made = plan_print(decomposition, self.settings, self.geometry, self.head,
                               lean=None if hints is None else LEAN, hints=hints or NO_HINTS,
                               thin=thin)
             return replace(self._finish(mesh, made, index, {}, t2, seed), parts=parts,
@@ -441,7 +444,7 @@ class _Slicing:
                 rule = replace(rule, spots=base.spots(), first=self.first_thickness(rule))
             return replace(replanned(base.hints, rule), thinning=rule)
 
-        retry = again if plan.decomposition is not None and rounds != 0 else None
+        retry = again if decomposition is not None and rounds != 0 else None
         leaned = 0
         try:
             first = replace(self._finish(mesh, plan, index, timings, t0, seed,
