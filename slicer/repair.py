@@ -276,19 +276,21 @@ def best_decomposition(decomposed: Callable[[int, int], Begun[R]], alternatives:
 
 @dataclass
 class _Search(Generic[R]):
-    """:func:`best_decomposition`'s decompositions: the best try of each so far, those left
-    for later, the seconds each took."""
+    """:func:`best_decomposition`'s decompositions: the best try so far (of tries ranked
+    alike, the earlier decomposition's), those left for later, the seconds each took. Only
+    the best try is kept, and a decomposition left for later its own best (its rest needs
+    it): a try holds its plan and G-code."""
 
     decomposed: Callable[[int, int], Begun[R]]
     failures: tuple[type[Exception], ...]
     timings: dict[str, float]
-    tries: dict[int, Try[R]] = field(default_factory=dict)
+    best: tuple[int, Try[R]] | None = None
     later: list[tuple[int, Callable[[], Try[R]]]] = field(default_factory=list)
     seconds: dict[int, float] = field(default_factory=dict)
     first_error: Exception | None = None
 
     def support_free(self) -> bool:
-        return any(t.support_free for t in self.tries.values())
+        return self.best is not None and self.best[1].support_free
 
     def begin(self, k: int, rounds: int) -> None:
         """The ``k``-th decomposition's first tries, and its rest now or later."""
@@ -300,20 +302,20 @@ class _Search(Generic[R]):
                     self.first_error = exc
                 log.info("decomposition %d failed: %s", k, exc)
                 return
-            self.tries[k] = begun.best
         if begun.rest is None or begun.best.support_free:
-            self._ended(k)
+            self._ended(k, begun.best)
         elif begun.best.over_air <= NEAR:
             self.finish(k, begun.rest)
         else:
             log.info("decomposition %d left for later: %s", k, begun.best)
+            self._keep(k, begun.best)
             self.later.append((k, begun.rest))
 
     def finish(self, k: int, rest: Callable[[], Try[R]]) -> None:
         """The rest of the ``k``-th decomposition's tries."""
         with self._timed(k):
-            self.tries[k] = rest()
-        self._ended(k)
+            end = rest()
+        self._ended(k, end)
 
     def kept(self) -> Try[R]:
         """The best try of all (raises the first decomposition's failure: none planned)."""
@@ -321,16 +323,22 @@ class _Search(Generic[R]):
         if others:
             self.timings["alternatives"] = sum(others)
             self.timings["alternatives_tried"] = float(len(others))
-        if not self.tries:
+        if self.best is None:
             assert self.first_error is not None
             raise self.first_error
-        k, best = min(self.tries.items(), key=lambda kt: (kt[1].rank(), kt[0]))
+        k, best = self.best
         if k:
             self.timings["first_decomposition"] = self.seconds.get(0, 0.0)
         return best
 
-    def _ended(self, k: int) -> None:
-        log.info("decomposition %d: %s", k, self.tries[k])
+    def _ended(self, k: int, end: Try[R]) -> None:
+        log.info("decomposition %d: %s", k, end)
+        self._keep(k, end)
+
+    def _keep(self, k: int, got: Try[R]) -> None:
+        """``got`` of the ``k``-th decomposition, when it ranks before the best so far."""
+        if self.best is None or (got.rank(), k) < (self.best[1].rank(), self.best[0]):
+            self.best = (k, got)
 
     @contextlib.contextmanager
     def _timed(self, k: int) -> Iterator[None]:
