@@ -379,9 +379,9 @@ class _Slicing:
         return replace(base, seed=base.seed + k)
 
     def decomposed(self, k: int, rounds: int) -> Begun[SliceResult]:
-        """The best try of the ``k``-th decomposition (:func:`repair.best_decomposition`):
-        planned upright, then leaning for at most ``rounds`` tries. The first is the one
-        asked for; the next ones are its runners-up (the decomposition's other valid
+        """The ``k``-th decomposition begun (:func:`repair.best_decomposition`): planned
+        upright, then leaning, at most ``rounds`` leaning tries with its rest. The first is
+        the one asked for; the next ones are its runners-up (the decomposition's other valid
         attempts, :attr:`Decomposition.runners_up`, at no new cost), then the next seeds.
         The first one's stage timings are the slice's; another one's refusals of the part
         itself (its decomposition, its travel) are :class:`repair.Refused`, passed over."""
