@@ -64,8 +64,8 @@ def slice_one(task: tuple[str, str, float, str]) -> dict[str, object]:
 
 @contextlib.contextmanager
 def _loop_log(path: Path) -> Iterator[None]:
-    """The closed loop's INFO lines (``slicer.repair``, ``slicer.pipeline``) written to
-    ``path``, each with the seconds since the slice began."""
+    """The closed loop's INFO lines (``slicer.repair``) written to ``path``, each with the
+    seconds since the slice began."""
     path.parent.mkdir(parents=True, exist_ok=True)
     handler = logging.FileHandler(path, mode="w")
     start = time.perf_counter()
@@ -75,17 +75,15 @@ def _loop_log(path: Path) -> Iterator[None]:
             return f"{time.perf_counter() - start:8.1f} {record.name} {record.getMessage()}"
 
     handler.setFormatter(_Since())
-    loggers = [logging.getLogger(n) for n in ("slicer.repair", "slicer.pipeline")]
-    levels = [lg.level for lg in loggers]
-    for lg in loggers:
-        lg.addHandler(handler)
-        lg.setLevel(logging.INFO)
+    loop = logging.getLogger("slicer.repair")
+    level = loop.level
+    loop.addHandler(handler)
+    loop.setLevel(logging.INFO)
     try:
         yield
     finally:
-        for lg, level in zip(loggers, levels, strict=True):
-            lg.removeHandler(handler)
-            lg.setLevel(level)
+        loop.removeHandler(handler)
+        loop.setLevel(level)
         handler.close()
 
 
@@ -138,7 +136,7 @@ def line(r: dict[str, object]) -> str:
 
 
 def tasks(args: argparse.Namespace) -> list[tuple[str, str, float, str]]:
-    """(class, source, layer height) of every slice asked for."""
+    """(class, source, layer height, log folder or "") of every slice asked for."""
     from slicer.mesh.hard_samples import hard_variant
 
     if args.variants:
